@@ -1,0 +1,1 @@
+"""Homogenization of periodic microstructures: tensor utilities, FFT and FEM RVE solvers, foam tables."""
