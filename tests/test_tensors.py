@@ -209,3 +209,16 @@ def test_check_stiffness_errors():
     check_stiffness(np.zeros((6, 6)), allow_zero=True)
     with pytest.raises(ValueError, match="6×6"):
         check_stiffness(np.eye(3))
+
+
+def test_result_symmetrises_and_reports_asymmetry():
+    from homogenization.result import HomogenizationResult
+
+    C = transverse_isotropic_voigt(**TI)
+    C_raw = C.copy()
+    C_raw[0, 1] += 1e-3 * np.abs(C).max()
+    r = HomogenizationResult.from_columns(C_raw, method="test", iterations=[1] * 6, residuals=[[0.0]] * 6, wall_s=0.0)
+    np.testing.assert_array_equal(r.C, r.C.T)
+    assert r.asymmetry == pytest.approx(1e-3)
+    d = r.to_dict()
+    assert d["ti_fit"]["axis"] == [1.0, 0.0, 0.0] and d["asymmetry"] == pytest.approx(1e-3)
