@@ -1,0 +1,186 @@
+"""meshes.tripod: exact plate and region volumes, tag placement, the paper-size preset, servo kinematics."""
+
+import math
+
+import dolfinx
+import numpy as np
+import pytest
+import ufl
+from mpi4py import MPI
+
+from meshes.tripod import ARM, ARM_END, CENTRE, PAPER_H, REGIONS, RING, TripodGeometry, make_tripod
+
+GEOMETRY = TripodGeometry()
+
+
+@pytest.fixture(scope="module")
+def tripod():
+    return make_tripod(MPI.COMM_WORLD, PAPER_H)
+
+
+@pytest.fixture(scope="module")
+def tripod_p2():
+    return make_tripod(MPI.COMM_WORLD, PAPER_H, order=2)
+
+
+def region_volumes(tripod):
+    dx = ufl.Measure("dx", domain=tripod.mesh, subdomain_data=tripod.cell_tags)
+    one = dolfinx.fem.Constant(tripod.mesh, 1.0)
+    local = np.array([dolfinx.fem.assemble_scalar(dolfinx.fem.form(one * dx(tag))) for tag in REGIONS["plate"]])
+    total = np.empty_like(local)
+    tripod.mesh.comm.Allreduce(local, total, op=MPI.SUM)
+    return dict(zip(REGIONS["plate"], total))
+
+
+def global_extremes(comm, values):
+    """(min, max) over all ranks of a 1D array (empty on some ranks allowed)."""
+    local = np.array([-np.min(values, initial=np.inf), np.max(values, initial=-np.inf)])
+    out = np.empty_like(local)
+    comm.Allreduce(local, out, op=MPI.MAX)
+    return -out[0], out[1]
+
+
+def test_analytic_area_of_the_default_plate():
+    # Hub triangle (side 30 mm) + three 30 × (55 − 8.66) mm arms − hole r = 5 mm, by hand.
+    hub = math.sqrt(3) / 4 * 30**2
+    arms = 3 * 30 * (55 - 15 / math.sqrt(3))
+    assert GEOMETRY.area == pytest.approx((hub + arms - math.pi * 25) * 1e-6, rel=1e-14)
+    assert GEOMETRY.reentrant_radius == pytest.approx(0.015 / math.sin(math.pi / 3))
+
+
+@pytest.mark.mpi
+def test_plate_volume_matches_the_analytic_volume(tripod, tripod_p2):
+    # Order 1: the arcs of the hole become inscribed polygons, so the mesh holds slightly more material.
+    excess = sum(region_volumes(tripod).values()) / GEOMETRY.volume - 1
+    assert 0 < excess < 3e-3
+    # Order 2: curved arcs, the error falls to the quadrature of the curved edges.
+    assert sum(region_volumes(tripod_p2).values()) == pytest.approx(GEOMETRY.volume, rel=5e-5)
+
+
+@pytest.mark.mpi
+def test_region_volumes_ring_and_arm_ends_are_exact_up_to_chords(tripod_p2):
+    volumes = region_volumes(tripod_p2)
+    t = GEOMETRY.thickness
+    assert volumes[RING] == pytest.approx(GEOMETRY.ring_area * t, rel=5e-4)
+    for tag in ARM_END:
+        assert volumes[tag] == pytest.approx(GEOMETRY.arm_end_area * t, rel=1e-5)
+    # The three arms are congruent (rotations by 120°), the centre holds what is left.
+    arm = [volumes[tag] for tag in ARM]
+    assert max(arm) == pytest.approx(min(arm), rel=1e-4)
+    assert volumes[CENTRE] > 0
+
+
+@pytest.mark.mpi
+def test_all_tags_present_and_the_preset_gives_about_2684_tetrahedra(tripod):
+    comm = tripod.mesh.comm
+    present = set().union(*comm.allgather(set(np.unique(tripod.cell_tags.values).tolist())))
+    assert present == set(REGIONS["plate"])
+    assert abs(tripod.n_cells - 2684) <= 0.15 * 2684
+    n_local = tripod.mesh.topology.index_map(3).size_local
+    tagged = np.unique(tripod.region_cells("plate"))
+    assert np.count_nonzero(tagged < n_local) == n_local  # every owned cell carries a tag
+
+
+def cell_node_coordinates(tripod, tags):
+    """Coordinates of the geometry nodes of the cells with the given tags (local, ghosts included)."""
+    cells = np.concatenate([tripod.cell_tags.find(tag) for tag in tags])
+    dofmap = tripod.mesh.geometry.dofmap
+    nodes = np.unique(np.concatenate([dofmap.links(c) for c in cells])) if cells.size else np.array([], int)
+    return tripod.mesh.geometry.x[nodes]
+
+
+@pytest.mark.mpi
+def test_regions_lie_in_their_radial_bands_and_angular_sectors(tripod):
+    comm, eps = tripod.mesh.comm, 1e-9
+    g = GEOMETRY
+    bands = {RING: (g.hole_radius, g.ring_radius), CENTRE: (g.ring_radius, g.centre_radius)}
+    bands |= {tag: (g.centre_radius, g.arm_end_radius) for tag in ARM}
+    bands |= {tag: (g.arm_end_radius, math.hypot(g.arm_length, g.arm_width / 2)) for tag in ARM_END}
+    for tag, (r_min, r_max) in bands.items():
+        x = cell_node_coordinates(tripod, [tag])
+        lo, hi = global_extremes(comm, np.hypot(x[:, 0], x[:, 1]))
+        assert r_min - eps <= lo and hi <= r_max + eps, (tag, lo, hi)
+    for i, e in enumerate(g.arm_directions()):
+        for tag in (ARM[i], ARM_END[i]):
+            x = cell_node_coordinates(tripod, [tag])
+            # Across the arm: |x · n_i| ≤ w/2 with n_i the in-plane normal; along it: x · e_i > 0.
+            lo, hi = global_extremes(comm, np.abs(x @ np.array([-e[1], e[0], 0.0])))
+            assert hi <= g.arm_width / 2 + eps
+            lo, hi = global_extremes(comm, x @ e)
+            assert lo > 0 and hi <= g.arm_length + eps
+    z_lo, z_hi = global_extremes(comm, tripod.mesh.geometry.x[:, 2])
+    assert (z_lo, z_hi) == pytest.approx((-g.thickness / 2, g.thickness / 2), abs=eps)
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("degree", [1, 2])
+def test_arm_end_dofs_are_the_nodes_beyond_the_cut(tripod, degree):
+    V = dolfinx.fem.VectorFunctionSpace(tripod.mesh, ("CG", degree))
+    x = V.tabulate_dof_coordinates()
+    n_owned = V.dofmap.index_map.size_local
+    R = GEOMETRY.arm_end_radius
+    # Vertices lie on or beyond the cut; P2 edge midpoints of the cut's chords (length ≲ 2h) lie inside by at
+    # most the sagitta (2h)²/(8R).
+    r_min = R * (1 - 1e-9) if degree == 1 else R - (2 * PAPER_H) ** 2 / (8 * R)
+    for i, e in enumerate(GEOMETRY.arm_directions()):
+        dofs = tripod.arm_end_dofs(V, i)
+        r = np.hypot(x[dofs, 0], x[dofs, 1])
+        lo, _ = global_extremes(tripod.mesh.comm, r)
+        assert lo >= r_min
+        # All owned P2 nodes of the plate outside the circle r = 45 mm (+ margin) on arm i are carried.
+        owned = np.arange(n_owned)
+        beyond = owned[(np.hypot(x[owned, 0], x[owned, 1]) > GEOMETRY.arm_end_radius + 1e-4) & (x[owned] @ e > 0)]
+        assert np.isin(beyond, dofs).all()
+
+
+def test_fillets_add_their_analytic_area():
+    g = TripodGeometry(fillet_radius=4e-3)
+    assert g.area - GEOMETRY.area == pytest.approx(3 * 16e-6 * (1 / math.sqrt(3) - math.pi / 6), rel=1e-12)
+    tripod = make_tripod(MPI.COMM_WORLD, PAPER_H, g, order=2)
+    assert sum(region_volumes(tripod).values()) == pytest.approx(g.volume, rel=5e-5)
+
+
+def test_servo_frames_lift_the_arm_ends_for_positive_angles():
+    theta = math.radians(25.0)
+    for frame, e in zip(GEOMETRY.servo_frames(), GEOMETRY.arm_directions()):
+        np.testing.assert_allclose(frame.pivot, 0.06 * e, atol=1e-15)
+        np.testing.assert_allclose(np.cross(e, frame.axis), [0, 0, 1], atol=1e-15)  # counter-clockwise tangent
+        R = frame.rotation(theta)
+        np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-15)
+        np.testing.assert_allclose(R @ frame.axis, frame.axis, atol=1e-15)
+        # X = p − s e_i (inside the servo circle) goes to p + s (−cos θ e_i + sin θ e_z).
+        s = 0.01
+        X = (frame.pivot - s * e)[:, None]
+        x = X[:, 0] + frame.displacement(X, theta)[:, 0]
+        np.testing.assert_allclose(x, frame.pivot + s * (-math.cos(theta) * e + math.sin(theta) * np.array([0, 0, 1])),
+                                   atol=1e-15)
+        assert frame.displacement(X, -theta)[2, 0] < 0 < frame.displacement(X, theta)[2, 0]
+        np.testing.assert_allclose(frame.displacement(frame.pivot[:, None], theta), 0.0, atol=1e-15)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        (dict(thickness=-5e-3), "thickness must be a positive length"),
+        (dict(ring_radius=18e-3), "ring_radius = 0.018 m is not < re-entrant corner radius"),
+        (dict(hole_radius=12e-3), "hole_radius = 0.012 m is not < ring_radius"),
+        (dict(arm_end_radius=60e-3), "arm_end_radius = 0.06 m is not < arm_length"),
+        (dict(fillet_radius=9e-3), "fillet_radius = 0.009 m reaches r = "),
+        (dict(fillet_radius=-1.0), "fillet_radius must be ≥ 0"),
+    ],
+)
+def test_bad_geometry_is_rejected(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        TripodGeometry(**kwargs)
+
+
+def test_bad_mesh_arguments_are_rejected(tripod):
+    with pytest.raises(ValueError, match="h = 0.02 m must be positive and at most twice the thickness"):
+        make_tripod(MPI.COMM_WORLD, 0.02)
+    with pytest.raises(ValueError, match="order must be"):
+        make_tripod(MPI.COMM_WORLD, order=0)
+    with pytest.raises(ValueError, match="unknown Tripod region 'hub'; valid regions: .*'centre'"):
+        tripod.region_cells("hub")
+    V = dolfinx.fem.VectorFunctionSpace(tripod.mesh, ("CG", 1))
+    with pytest.raises(ValueError, match="servo must be 0, 1 or 2, got 3"):
+        tripod.arm_end_dofs(V, 3)
