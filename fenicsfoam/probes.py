@@ -1,0 +1,272 @@
+"""Probes: scalar measurements of a displacement field, as the paper reports them (DESIGN.md "Public contract").
+
+Each probe is a small object built once for a function space and a set of tags (forms compiled, node sets
+located), then called on any displacement :class:`dolfinx.fem.Function` of that space, every load step:
+
+* :class:`TipDeflection` — beam: mean displacement of the tip face along a direction (m, signed),
+  ``∫_tip u·d̂ ds / ∫_tip ds`` over the reference face.
+* :class:`CenterHeight` — Tripod: height of the deformed central region's centroid (m),
+  ``∫_Ω_c (X + u)_z dx / ∫_Ω_c dx`` over the reference region.
+* :class:`CenterRotation` — Tripod: rotation about the vertical axis of the best-fit rigid rotation of the
+  central ring's nodes (degrees, counter-clockwise seen from above (+z) positive).
+
+Every value is summed over ranks (``comm.allreduce``), so all ranks return the same number under ``mpirun``.
+The functions :func:`tip_deflection`, :func:`center_height` and :func:`center_rotation` build the probe and
+call it once, for one-off use.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Sequence
+
+import dolfinx
+import dolfinx.fem
+import numpy as np
+import ufl
+from mpi4py import MPI
+
+__all__ = [
+    "CenterHeight",
+    "CenterRotation",
+    "TipDeflection",
+    "center_height",
+    "center_rotation",
+    "kabsch_rotation",
+    "tip_deflection",
+    "twist_angle",
+]
+
+logger = logging.getLogger(__name__)
+
+Tags = int | Sequence[int]
+
+
+def _as_tag_tuple(tags: Tags) -> tuple[int, ...]:
+    """``tags`` as a non-empty tuple of ints (a single int allowed)."""
+    values = (tags,) if isinstance(tags, int | np.integer) else tuple(tags)
+    if not values or not all(isinstance(t, int | np.integer) for t in values):
+        raise ValueError(f"tags must be an int or a non-empty sequence of ints, got {tags!r}")
+    return tuple(int(t) for t in values)
+
+
+def _check_tags(
+    meshtags: dolfinx.mesh.MeshTagsMetaClass, tags: Tags, mesh: dolfinx.mesh.Mesh, dim: int, kind: str
+) -> tuple[int, ...]:
+    """Raise ``ValueError`` unless ``meshtags`` marks ``dim``-entities of ``mesh`` and each tag marks some entity."""
+    tags = _as_tag_tuple(tags)
+    if meshtags.mesh is not mesh._mesh:
+        raise ValueError(f"the {kind} tags belong to another mesh than the displacement's")
+    if meshtags.dim != dim:
+        raise ValueError(f"{kind} tags must mark entities of dimension {dim}, got tags of dimension {meshtags.dim}")
+    comm = mesh.comm
+    counts = np.array([meshtags.find(tag).size for tag in tags], dtype=np.int64)
+    total = np.empty_like(counts)
+    comm.Allreduce(counts, total, op=MPI.SUM)
+    missing = [tag for tag, n in zip(tags, total) if n == 0]
+    if missing:
+        available = sorted(set().union(*comm.allgather(set(np.unique(meshtags.values).tolist()))))
+        raise ValueError(f"{kind} tag(s) {missing} mark no entity of the mesh; available {kind} tags: {available}")
+    return tags
+
+
+def _check_displacement_space(V: dolfinx.fem.FunctionSpace) -> None:
+    """Raise ``ValueError`` unless ``V`` is a 3-component Lagrange space on a 3D mesh."""
+    element = V.ufl_element()
+    if element.family() not in ("Lagrange", "Q") or V.dofmap.index_map_bs != 3 or V.mesh.geometry.dim != 3:
+        raise ValueError(
+            f"probes need a 3D vector Lagrange displacement space, got {element} with block size "
+            f"{V.dofmap.index_map_bs} on a mesh of geometric dimension {V.mesh.geometry.dim}"
+        )
+
+
+def _check_same_space(u: dolfinx.fem.Function, V: dolfinx.fem.FunctionSpace) -> None:
+    """Raise ``ValueError`` unless ``u`` lives on the mesh and element of the probe's space ``V``."""
+    if u.function_space.mesh is not V.mesh or u.function_space.ufl_element() != V.ufl_element():
+        raise ValueError(f"displacement in {u.function_space.ufl_element()} on another mesh or element than "
+                         f"the probe's {V.ufl_element()}")
+
+
+class _ScalarProbe:
+    """A probe ``∫ f(u) dμ / ∫ dμ`` with both forms compiled once for a private copy of ``u``."""
+
+    def __init__(self, V: dolfinx.fem.FunctionSpace, integrand, measure: ufl.Measure) -> None:
+        self._u = dolfinx.fem.Function(V)
+        self._comm = V.mesh.comm
+        self._form = dolfinx.fem.form(integrand(self._u) * measure)
+        self.size = self._assemble(dolfinx.fem.form(dolfinx.fem.Constant(V.mesh, 1.0) * measure))
+
+    def _assemble(self, form: dolfinx.fem.Form) -> float:
+        return self._comm.allreduce(dolfinx.fem.assemble_scalar(form), op=MPI.SUM)
+
+    def __call__(self, u: dolfinx.fem.Function) -> float:
+        """The probe's value for the displacement ``u`` (a Function of the space the probe was built for)."""
+        V = self._u.function_space
+        _check_same_space(u, V)
+        n_owned = V.dofmap.index_map.size_local * V.dofmap.index_map_bs
+        self._u.x.array[:n_owned] = u.x.array[:n_owned]
+        self._u.x.scatter_forward()
+        return self._assemble(self._form) / self.size
+
+
+class TipDeflection(_ScalarProbe):
+    """Mean displacement of a face along a direction: ``δ = ∫_tip u·d̂ ds / ∫_tip ds`` (m, signed).
+
+    The integrals are over the reference (undeformed) face. The sign follows ``direction``: with gravity
+    ``g = −g e_z``, ``direction = (0, 0, 1)`` gives the paper's convention (a sagging tip is negative, Fig. 6:
+    −48 mm), ``direction = g/|g|`` gives the sag as a positive number.
+
+    Parameters
+    ----------
+    V : dolfinx.fem.FunctionSpace
+        The displacement space (3D vector Lagrange).
+    facet_tags : MeshTags
+        Facet tags of the mesh.
+    tip_tag : int
+        Tag of the tip face (``meshes.beam.TIP_FACE``); must lie on the exterior boundary.
+    direction : sequence of 3 floats
+        Direction of measurement, normalised here.
+
+    """
+
+    def __init__(self, V: dolfinx.fem.FunctionSpace, facet_tags, tip_tag: int, direction: Sequence[float]) -> None:
+        _check_displacement_space(V)
+        tdim = V.mesh.topology.dim
+        tags = _check_tags(facet_tags, tip_tag, V.mesh, tdim - 1, "facet")
+        d = np.asarray(direction, dtype=float)
+        if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) == 0:
+            raise ValueError(f"direction must be a non-zero finite 3-vector, got {direction!r}")
+        d_hat = ufl.as_vector((d / np.linalg.norm(d)).tolist())
+        ds = ufl.Measure("ds", domain=V.mesh, subdomain_data=facet_tags, subdomain_id=tags)
+        super().__init__(V, lambda u: ufl.inner(u, d_hat), ds)
+        if self.size <= 0:
+            raise ValueError(f"facet tag {tip_tag} has zero area on the exterior boundary: not a boundary face")
+
+
+class CenterHeight(_ScalarProbe):
+    """Height of the deformed centroid of a region: ``z_c = ∫_Ω_c (X + u)_z dx / ∫_Ω_c dx`` (m).
+
+    The region is given in the reference configuration; its reference volume weights the points. For the Tripod
+    use ``meshes.tripod.RING`` (the probe ring) or ``meshes.tripod.REGIONS["centre"]``.
+
+    Parameters
+    ----------
+    V : dolfinx.fem.FunctionSpace
+        The displacement space (3D vector Lagrange).
+    cell_tags : MeshTags
+        Cell tags of the mesh.
+    center_tag : int or sequence of int
+        Cell tag(s) of the region.
+
+    """
+
+    def __init__(self, V: dolfinx.fem.FunctionSpace, cell_tags, center_tag: Tags) -> None:
+        _check_displacement_space(V)
+        tags = _check_tags(cell_tags, center_tag, V.mesh, V.mesh.topology.dim, "cell")
+        X = ufl.SpatialCoordinate(V.mesh)
+        dx = ufl.Measure("dx", domain=V.mesh, subdomain_data=cell_tags, subdomain_id=tags)
+        super().__init__(V, lambda u: X[2] + u[2], dx)
+
+
+def kabsch_rotation(H: np.ndarray) -> np.ndarray:
+    """Best-fit rotation from a cross-covariance ``H = Σ (X − X̄)(x − x̄)ᵀ`` (Kabsch).
+
+    ``R = argmin_{R ∈ SO(3)} Σ |R (X − X̄) − (x − x̄)|²``: with the SVD ``H = U S Vᵀ``,
+    ``R = V diag(1, 1, sign det(V Uᵀ)) Uᵀ``.
+    """
+    U, _, Vt = np.linalg.svd(np.asarray(H, dtype=float))
+    d = np.sign(np.linalg.det(Vt.T @ U.T))
+    return Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
+
+
+def twist_angle(R: np.ndarray) -> float:
+    """Twist (rad) about e_z of a rotation, from its swing–twist decomposition ``R = R_swing R_twist``.
+
+    ``R_twist`` turns by ψ about e_z, ``R_swing`` about a horizontal axis. With ``R``'s unit quaternion
+    ``(w, v)``, ``ψ = 2 atan2(v_z, w)``; since ``R₁₀ − R₀₁ = 4 w v_z`` and ``R₀₀ + R₁₁ = 2 (w² − v_z²)``,
+    ``ψ = atan2(R₁₀ − R₀₁, R₀₀ + R₁₁) ∈ (−π, π]``. Undefined when ``w = v_z = 0`` (e_z turned upside down).
+    """
+    s, c = R[1, 0] - R[0, 1], R[0, 0] + R[1, 1]
+    if math.hypot(s, c) < 1e-10:
+        raise ValueError("twist about z undefined: the rotation turns e_z upside down (swing of 180°)")
+    return math.atan2(s, c)
+
+
+class CenterRotation:
+    """Rotation about the vertical axis of a region's nodes (deg, counter-clockwise seen from +z positive).
+
+    The nodes are the dof points of the displacement's Lagrange space on the region's cells (the vertices for
+    P1, vertices and edge midpoints for P2), each counted once (owned dofs only), with equal weights. With
+    reference positions X and deformed positions x = X + u, the cross-covariance
+    ``H = Σ (X − X̄)(x − x̄)ᵀ = Σ (X − X̄)(x − X̄)ᵀ`` (as ``Σ (X − X̄) = 0``) is summed over ranks;
+    every rank then computes the same best-fit rotation :func:`kabsch_rotation` and returns its twist about e_z
+    (:func:`twist_angle`), in degrees, in (−180°, 180°]. The ring's translation and tilt (swing) do not change
+    the value.
+
+    Parameters
+    ----------
+    V : dolfinx.fem.FunctionSpace
+        The displacement space (3D vector Lagrange).
+    cell_tags : MeshTags
+        Cell tags of the mesh.
+    ring_tag : int or sequence of int
+        Cell tag(s) of the region, e.g. ``meshes.tripod.RING``.
+
+    Attributes
+    ----------
+    n_nodes : int
+        Global number of nodes in the fit.
+
+    """
+
+    def __init__(self, V: dolfinx.fem.FunctionSpace, cell_tags, ring_tag: Tags) -> None:
+        _check_displacement_space(V)
+        tdim = V.mesh.topology.dim
+        tags = _check_tags(cell_tags, ring_tag, V.mesh, tdim, "cell")
+        self._comm = V.mesh.comm
+        cells = np.concatenate([cell_tags.find(tag) for tag in tags])
+        # remote=True (the default) also returns the dofs this rank owns on the region's cells of other ranks.
+        dofs = dolfinx.fem.locate_dofs_topological(V, tdim, cells, remote=True)
+        self._nodes = dofs[dofs < V.dofmap.index_map.size_local]
+        X = V.tabulate_dof_coordinates()[self._nodes]
+        sums = np.append(X.sum(axis=0), len(self._nodes))
+        total = np.empty_like(sums)
+        self._comm.Allreduce(sums, total, op=MPI.SUM)
+        self.n_nodes = int(total[3])
+        self._X_mean = total[:3] / total[3]
+        self._dX = X - self._X_mean
+        spread = self._allreduce(self._dX.T @ self._dX)
+        if np.linalg.matrix_rank(spread, tol=1e-10 * np.trace(spread)) < 2:
+            raise ValueError(f"the {self.n_nodes} nodes of cell tag(s) {list(tags)} are collinear: rotation undefined")
+        self._V = V
+
+    def _allreduce(self, local: np.ndarray) -> np.ndarray:
+        total = np.empty_like(local)
+        self._comm.Allreduce(np.ascontiguousarray(local), total, op=MPI.SUM)
+        return total
+
+    def rotation_matrix(self, u: dolfinx.fem.Function) -> np.ndarray:
+        """The best-fit rotation ``R`` (3×3) of the nodes for the displacement ``u``, same on every rank."""
+        _check_same_space(u, self._V)
+        x = self._dX + u.x.array.reshape(-1, 3)[self._nodes]
+        return kabsch_rotation(self._allreduce(self._dX.T @ x))
+
+    def __call__(self, u: dolfinx.fem.Function) -> float:
+        """Twist about e_z (degrees) of the best-fit rotation for the displacement ``u``."""
+        return math.degrees(twist_angle(self.rotation_matrix(u)))
+
+
+def tip_deflection(u: dolfinx.fem.Function, facet_tags, tip_tag: int, direction: Sequence[float]) -> float:
+    """One-off :class:`TipDeflection` of ``u`` (compiles its forms: build the class once for repeated calls)."""
+    return TipDeflection(u.function_space, facet_tags, tip_tag, direction)(u)
+
+
+def center_height(u: dolfinx.fem.Function, cell_tags, center_tag: Tags) -> float:
+    """One-off :class:`CenterHeight` of ``u`` (compiles its forms: build the class once for repeated calls)."""
+    return CenterHeight(u.function_space, cell_tags, center_tag)(u)
+
+
+def center_rotation(u: dolfinx.fem.Function, cell_tags, ring_tag: Tags) -> float:
+    """One-off :class:`CenterRotation` of ``u`` in degrees."""
+    return CenterRotation(u.function_space, cell_tags, ring_tag)(u)
