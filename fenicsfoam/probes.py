@@ -89,7 +89,7 @@ def _check_same_space(u: dolfinx.fem.Function, V: dolfinx.fem.FunctionSpace) -> 
 
 
 class _ScalarProbe:
-    """A probe ``∫ f(u) dμ / ∫ dμ`` with both forms compiled once for a private copy of ``u``."""
+    """A probe ``∫ f(u) dμ / ∫ dμ`` with both forms compiled once for a private copy of ``u``; ``size = ∫ dμ``."""
 
     def __init__(self, V: dolfinx.fem.FunctionSpace, integrand, measure: ufl.Measure) -> None:
         self._u = dolfinx.fem.Function(V)

@@ -10,14 +10,14 @@ minus the central hole ``r < hole_radius``. Between two arms the outline has a r
 Regions (cell tags, a partition of the plate; circular cuts are geometric, so each region is exact up to the
 chordal error of the arcs):
 
-==================  ======================  ==============================================================
-tag                 region                  use
-==================  ======================  ==============================================================
-:data:`RING` = 1    hole_radius ≤ r < ring  probes (centre height, rotation); part of the centre
-:data:`CENTRE` = 2  ring ≤ r < centre       rest of the central region (case A: isotropic 15 % foam)
-:data:`ARM` 11–13   centre ≤ r < arm_end    arm i (case A: TI 30 % foam with its l axis along e_i)
-:data:`ARM_END` 21–23  r ≥ arm_end          the part of arm i carried rigidly by servo i's horn
-==================  ======================  ==============================================================
+=====================  =======================  ======================================================
+tag                    region                   use
+=====================  =======================  ======================================================
+:data:`RING` = 1       hole_radius ≤ r < ring   probes (centre height, rotation); part of the centre
+:data:`CENTRE` = 2     ring ≤ r < centre        rest of the central region (case A: isotropic 15 % foam)
+:data:`ARM` 11–13      centre ≤ r < arm_end     arm i (case A: TI 30 % foam with its l axis along e_i)
+:data:`ARM_END` 21–23  r ≥ arm_end              the part of arm i carried rigidly by servo i's horn
+=====================  =======================  ======================================================
 
 Defaults: ring 5–10 mm, centre r < 20 mm (just beyond the re-entrant corners, so the centre holds the whole hub
 where the arms overlap and each arm region is a plain strip), arm ends r ≥ 45 mm. Named unions of tags are in
