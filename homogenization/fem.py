@@ -40,7 +40,7 @@ Discrete choices
   stiffness. Their number is ``info["n_void_dofs"]``.
 * Solver: one matrix assembly, one factorization (MUMPS LDLᵀ through a KSP with options prefix
   :data:`OPTIONS_PREFIX`) and six right-hand sides. A rigid-body near-nullspace is attached to the matrix, so
-  ``petsc_options={"ksp_type": "cg", "pc_type": "gamg", "ksp_rtol": 1e-10}`` works for large meshes.
+  ``petsc_options=iterative_options()`` (CG + GAMG) works for large meshes.
 """
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ from petsc4py import PETSc
 from homogenization.result import LOAD_CASES, HomogenizationResult
 from homogenization.tensors import VOIGT_PAIRS, check_stiffness, voigt_to_mandel
 
-__all__ = ["OPTIONS_PREFIX", "default_options", "homogenize_fem", "unit_strain"]
+__all__ = ["OPTIONS_PREFIX", "default_options", "homogenize_fem", "iterative_options", "unit_strain"]
 
 logger = logging.getLogger(__name__)
 
@@ -82,6 +82,17 @@ def default_options() -> dict[str, Any]:
     factorization (``pc_type cholesky``, MUMPS ``SYM = 2``) applies; it stores half the factor of an LU.
     """
     return {"ksp_type": "preonly", "pc_type": "cholesky", "pc_factor_mat_solver_type": "mumps"}
+
+
+def iterative_options(rtol: float = 1e-8) -> dict[str, Any]:
+    """PETSc options for CG + smoothed-aggregation AMG (GAMG) with the rigid-body near-nullspace.
+
+    Faster than the direct solver beyond ~50k dofs (see README). The error of C is of the order of the relative
+    residual squared times the condition (measured: rtol 1e-8 → 2e-10, rtol 1e-6 → 2e-8 on a 15k-dof inclusion);
+    ``info["energy_vs_stress_rel_diff"]`` tracks it. ``pc_gamg_threshold`` 0.01 (drop weak couplings while
+    aggregating) cut the CG iterations by 40 % on that problem.
+    """
+    return {"ksp_type": "cg", "ksp_rtol": rtol, "ksp_max_it": 2000, "pc_type": "gamg", "pc_gamg_threshold": 0.01}
 
 
 def unit_strain(J: int) -> np.ndarray:
@@ -201,8 +212,12 @@ def _volumes_by_tag(mesh, tags: np.ndarray, comm) -> dict[int, float]:
 # --------------------------------------------------------------------------------------------------
 # Periodicity and rigid translations
 # --------------------------------------------------------------------------------------------------
-def _periodic_constraint(V, box: np.ndarray, tol: float):
-    """One geometrical periodic constraint: upper faces, edges and corners → their images on the lower faces."""
+def _periodic_constraint(V, box: np.ndarray, tol: float, comm):
+    """One geometrical periodic constraint: upper faces, edges and corners → their images on the lower faces.
+
+    Raises if some upper-face dof is not tied to exactly one master node with weight 1: dolfinx_mpc silently
+    leaves a dof free when its image is outside the mesh, and interpolates when the image is not a node.
+    """
     lo, hi = box[0][:, None], box[1][:, None]
 
     def on_upper_face(x):
@@ -217,16 +232,19 @@ def _periodic_constraint(V, box: np.ndarray, tol: float):
     mpc = dolfinx_mpc.MultiPointConstraint(V)
     mpc.create_periodic_constraint_geometrical(V, on_upper_face, to_master, [])
     mpc.finalize()
-    return mpc
 
-
-def _check_nodal_masters(mpc, comm) -> int:
-    """Number of slaves (global) whose constraint is not ``u_slave = u_master`` with one master of weight 1."""
+    n_owned, bs = V.dofmap.index_map.size_local, V.dofmap.index_map_bs
+    upper_blocks = fem.locate_dofs_geometrical(V, on_upper_face)
+    n_upper = comm.allreduce(int(np.count_nonzero(upper_blocks < n_owned)) * bs, op=MPI.SUM)
+    slaves = mpc.slaves[mpc.slaves < n_owned * bs]
     coeffs, offsets = mpc.coefficients()
-    n_masters = np.diff(offsets)[mpc.slaves]
-    first = coeffs[offsets[mpc.slaves]] if len(coeffs) else np.array([])
-    bad = np.count_nonzero((n_masters != 1) | (np.abs(first - 1.0) > 1e-8))
-    return comm.allreduce(int(bad), op=MPI.SUM)
+    nodal = (np.diff(offsets)[slaves] == 1) & (np.abs(coeffs[offsets[slaves]] - 1.0) < 1e-8)
+    n_nodal = comm.allreduce(int(np.count_nonzero(nodal)), op=MPI.SUM)
+    if n_nodal != n_upper:
+        raise ValueError(f"{n_upper - n_nodal} of the {n_upper} dofs on the upper faces of the box have no "
+                         "node-for-node image on the lower faces; the mesh must be periodic node for node on "
+                         "opposite faces of the box")
+    return mpc
 
 
 def _pinned_dof_bc(V, tags, materials, box: np.ndarray, tol: float, comm):
@@ -348,11 +366,7 @@ def homogenize_fem(mesh: dolfinx.mesh.Mesh, cell_tags: dolfinx.mesh.MeshTagsMeta
     # ---- spaces, data, constraint, pinned dof
     V = fem.VectorFunctionSpace(mesh, ("CG", degree))
     C_M = _stiffness_field(mesh, tags, materials)
-    mpc = _periodic_constraint(V, box, tol)
-    n_bad = _check_nodal_masters(mpc, comm)
-    if n_bad:
-        raise ValueError(f"{n_bad} dofs on the upper faces of the box have no node-for-node image on the lower "
-                         "faces; the mesh must be periodic node for node on opposite faces of the box")
+    mpc = _periodic_constraint(V, box, tol, comm)
     bc, pinned_point = _pinned_dof_bc(V, tags, materials, box, tol, comm)
 
     # ---- forms: compiled once; the macroscopic strain is a Constant updated per load case

@@ -9,7 +9,7 @@ import pytest
 from dolfinx import mesh as dmesh
 from mpi4py import MPI
 
-from homogenization.fem import homogenize_fem, unit_strain
+from homogenization.fem import homogenize_fem, iterative_options, unit_strain
 from homogenization.tensors import (
     VOIGT_PAIRS,
     isotropic_voigt,
@@ -95,6 +95,7 @@ def test_unit_strain_is_engineering_voigt():
         assert np.count_nonzero(E) == (1 if i == j else 2)
 
 
+@pytest.mark.mpi
 @pytest.mark.parametrize("C", [C_ISO, C_TI], ids=["isotropic", "rotated-TI"])
 def test_homogeneous_cube_returns_the_material(C):
     msh = unit_cube(3)
@@ -106,6 +107,7 @@ def test_homogeneous_cube_returns_the_material(C):
     assert r.info["n_void_dofs"] == 0
 
 
+@pytest.mark.mpi
 @pytest.mark.parametrize("degree, n", [(1, 4), (2, 2)])
 @pytest.mark.parametrize("axis", [0, 1, 2])
 def test_laminate_matches_closed_form(axis, degree, n):
@@ -116,6 +118,15 @@ def test_laminate_matches_closed_form(axis, degree, n):
     check_consistent(r)
     assert rel_err(r.C, laminate([C_TI, C_ISO], [f, 1 - f], axis)) < EXACT
     assert r.info["volume_fractions"] == {1: pytest.approx(f), 2: pytest.approx(1 - f)}
+
+
+@pytest.mark.parametrize("degree", [1, 2])
+def test_laminate_on_hexahedra(degree):
+    msh = dmesh.create_unit_cube(MPI.COMM_WORLD, 4, 4, 4, dmesh.CellType.hexahedron)
+    r = homogenize_fem(msh, tag_cells(msh, lambda x: np.where(x[:, 1] < 0.25, 1, 2)), {1: C_TI, 2: C_ISO},
+                       degree=degree)
+    check_consistent(r)
+    assert rel_err(r.C, laminate([C_TI, C_ISO], [0.25, 0.75], axis=1)) < EXACT
 
 
 def test_void_layer_is_exact_and_equals_solid_only_mesh():
@@ -168,8 +179,7 @@ def test_gamg_with_rigid_body_near_nullspace_matches_lu():
     cell_tags = cube_inclusion(msh)
     materials = {1: C_ISO, 2: C_SOFT}
     lu = homogenize_fem(msh, cell_tags, materials)
-    cg = homogenize_fem(msh, cell_tags, materials,
-                        petsc_options={"ksp_type": "cg", "pc_type": "gamg", "ksp_rtol": 1e-12})
+    cg = homogenize_fem(msh, cell_tags, materials, petsc_options=iterative_options(rtol=1e-12))
     assert cg.info["ksp_type"] == "cg" and cg.info["pc_type"] == "gamg"
     assert all(it > 1 for it in cg.iterations)
     assert all(len(h) == it + 1 for h, it in zip(cg.residuals, cg.iterations))
@@ -206,11 +216,13 @@ def two_phase():
     return msh, tag_cells(msh, lambda x: np.where(x[:, 0] < 0.5, 1, 2))
 
 
+@pytest.mark.mpi
 def test_error_tag_without_material(two_phase):
     with pytest.raises(ValueError, match=r"cell tags \[2\] are in the mesh but have no material"):
         homogenize_fem(*two_phase, {1: C_ISO})
 
 
+@pytest.mark.mpi
 def test_error_material_without_tag(two_phase):
     with pytest.raises(ValueError, match=r"materials given for cell tags \[5\] that are not in the mesh"):
         homogenize_fem(*two_phase, {1: C_ISO, 2: C_ISO, 5: C_ISO})
@@ -242,6 +254,16 @@ def test_error_mesh_outside_box(two_phase):
         homogenize_fem(*two_phase, {1: C_ISO, 2: C_ISO}, box=((0, 0, 0), (0.5, 1, 1)))
 
 
+def test_error_mesh_without_periodic_image():
+    """A solid-only mesh that reaches x = 1 but not x = 0: dolfinx_mpc would leave those dofs free."""
+    msh = unit_cube(4)
+    cell_tags = tag_cells(msh, lambda x: np.where(x[:, 0] > 0.5, 1, 2))
+    right, *_ = dmesh.create_submesh(msh, 3, cell_tags.indices[cell_tags.values == 1])
+    with pytest.raises(ValueError, match="75 of the 129 dofs on the upper faces of the box have no node-for-node"):
+        homogenize_fem(right, tag_cells(right, lambda p: np.ones(len(p))), {1: C_ISO})
+
+
+@pytest.mark.mpi
 def test_error_mesh_not_periodic_node_for_node():
     msh = unit_cube(3)
     x = msh.geometry.x
