@@ -187,7 +187,7 @@ def _check_inside_box(mesh, box: np.ndarray, tol: float, comm) -> None:
 
 
 def _stiffness_field(mesh, tags: np.ndarray, materials: dict[int, np.ndarray]):
-    """DG0 field of 6×6 Mandel stiffnesses from the owned cells' tags (ghosts updated by scatter)."""
+    """DG0 field of 6×6 Mandel stiffnesses, set on the owned cells from their tags, then scattered to ghosts."""
     Q = fem.FunctionSpace(mesh, ufl.TensorElement("DG", mesh.ufl_cell(), 0, shape=(6, 6)))
     C_M = fem.Function(Q, name="C_mandel")
     values = np.zeros((len(tags), 36))
@@ -247,10 +247,12 @@ def _periodic_constraint(V, box: np.ndarray, tol: float, comm):
     return mpc
 
 
-def _pinned_dof_bc(V, tags, materials, box: np.ndarray, tol: float, comm):
-    """Zero Dirichlet condition on the interior, stiff dof nearest the box centre; returns (bc, point)."""
+def _pinned_dof_bc(V, x: np.ndarray, tags, materials, box: np.ndarray, tol: float, comm):
+    """Zero Dirichlet condition on the interior, stiff dof nearest the box centre; returns (bc, point).
+
+    ``x`` are the coordinates of the local dofs (blocks) of ``V``.
+    """
     n_owned = V.dofmap.index_map.size_local
-    x = V.tabulate_dof_coordinates()[:, :3]
     interior = np.all((x > box[0] + tol) & (x < box[1] - tol), axis=1)
     stiff_tags = [t for t, C in materials.items() if C.any()]
     dofs_per_cell = V.dofmap.dof_layout.num_dofs
@@ -276,10 +278,9 @@ def _pinned_dof_bc(V, tags, materials, box: np.ndarray, tol: float, comm):
     return bc, point
 
 
-def _rigid_body_modes(V, A: PETSc.Mat, centre: np.ndarray) -> PETSc.NullSpace:
+def _rigid_body_modes(x_owned: np.ndarray, A: PETSc.Mat, centre: np.ndarray) -> PETSc.NullSpace:
     """Near-nullspace of the six rigid-body modes (translations, rotations about ``centre``) for multigrid."""
-    n_owned = V.dofmap.index_map.size_local
-    x = V.tabulate_dof_coordinates()[:n_owned, :3] - centre
+    x = x_owned - centre
     basis = [A.createVecLeft() for _ in range(6)]
     for i in range(3):
         basis[i].array.reshape(-1, 3)[:, i] = 1.0
@@ -341,7 +342,8 @@ def homogenize_fem(mesh: dolfinx.mesh.Mesh, cell_tags: dolfinx.mesh.MeshTagsMeta
         ``method="fem"``; ``C_raw`` from stress averages (column J = ⟨σ⟩ for unit strain E_J), ``C`` its
         symmetric part; ``iterations`` (1 per case for a direct solve, else the Krylov count); ``residuals``
         (Krylov history, or ``[‖b‖, ‖b - A x‖]`` for a direct solve); ``info`` with ``n_dofs``, ``degree``,
-        ``timings`` (``setup``, ``assembly``, ``factorization``, ``solves`` per case, ``averages``),
+        ``timings`` in s (``setup``, ``assembly``, ``factorization`` — or preconditioner set-up —, ``solves``
+        per case, ``averages``),
         ``C_energy``, ``energy_vs_stress_rel_diff``, ``constraint``, ``pinned_point``, ``n_void_dofs``,
         ``volume_fractions`` (meshed volume of each tag / box volume) and the PETSc options used.
 
@@ -367,7 +369,8 @@ def homogenize_fem(mesh: dolfinx.mesh.Mesh, cell_tags: dolfinx.mesh.MeshTagsMeta
     V = fem.VectorFunctionSpace(mesh, ("CG", degree))
     C_M = _stiffness_field(mesh, tags, materials)
     mpc = _periodic_constraint(V, box, tol, comm)
-    bc, pinned_point = _pinned_dof_bc(V, tags, materials, box, tol, comm)
+    x_dofs = V.tabulate_dof_coordinates()[:, :3]
+    bc, pinned_point = _pinned_dof_bc(V, x_dofs, tags, materials, box, tol, comm)
 
     # ---- forms: compiled once; the macroscopic strain is a Constant updated per load case
     E_macro = fem.Constant(mesh, np.zeros((3, 3), dtype=PETSc.ScalarType))
@@ -392,7 +395,7 @@ def homogenize_fem(mesh: dolfinx.mesh.Mesh, cell_tags: dolfinx.mesh.MeshTagsMeta
         diagonal.array[void_rows] = 1.0
         A.setDiagonal(diagonal, addv=PETSc.InsertMode.INSERT_VALUES)
     A.setOption(PETSc.Mat.Option.SYMMETRIC, True)
-    A.setNearNullSpace(_rigid_body_modes(V, A, box.mean(axis=0)))
+    A.setNearNullSpace(_rigid_body_modes(x_dofs[: V.dofmap.index_map.size_local], A, box.mean(axis=0)))
     t_assembly = time.perf_counter() - t0
 
     t0 = time.perf_counter()

@@ -129,6 +129,55 @@ def test_laminate_on_hexahedra(degree):
     assert rel_err(r.C, laminate([C_TI, C_ISO], [0.25, 0.75], axis=1)) < EXACT
 
 
+def gmsh_laminate(h, f, axis, comm=MPI.COMM_WORLD):
+    """Unstructured periodic mesh of the unit cube cut by the plane x_axis = f (tags 1 below, 2 above).
+
+    gmsh (rank 0) meshes the two boxes conformingly, every upper face periodic with its translate on the lower face.
+    """
+    import gmsh
+    from dolfinx.io import gmshio
+
+    if comm.rank == 0:
+        gmsh.initialize()
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add("laminate")
+        normal = np.eye(3)[axis]
+        below = gmsh.model.occ.addBox(0, 0, 0, *(1 - (1 - f) * normal))
+        above = gmsh.model.occ.addBox(*(f * normal), *(1 - f * normal))
+        gmsh.model.occ.fragment([(3, below)], [(3, above)])
+        gmsh.model.occ.synchronize()
+        e = 1e-6
+        for d in range(3):
+            shift = np.eye(4)
+            shift[d, 3] = 1.0
+            upper_lo = np.full(3, -e)
+            upper_lo[d] = 1 - e
+            for _, surface in gmsh.model.getEntitiesInBoundingBox(*upper_lo, *np.full(3, 1 + e), dim=2):
+                bbox = np.array(gmsh.model.getBoundingBox(2, surface)) - np.tile(np.eye(3)[d], 2)
+                (_, master), = gmsh.model.getEntitiesInBoundingBox(*(bbox[:3] - e), *(bbox[3:] + e), dim=2)
+                gmsh.model.mesh.setPeriodic(2, [surface], [master], shift.ravel().tolist())
+        for _, volume in gmsh.model.getEntities(3):
+            centre = gmsh.model.occ.getCenterOfMass(3, volume)
+            gmsh.model.addPhysicalGroup(3, [volume], 1 if centre[axis] < f else 2)
+        gmsh.option.setNumber("Mesh.CharacteristicLengthMax", h)
+        gmsh.model.mesh.generate(3)
+    msh, cell_tags, _ = gmshio.model_to_mesh(gmsh.model, comm, 0, gdim=3)
+    if comm.rank == 0:
+        gmsh.finalize()
+    return msh, cell_tags
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("axis, degree", [(0, 1), (1, 1), (2, 1), (1, 2)])
+def test_laminate_on_unstructured_gmsh_mesh(axis, degree):
+    """An unstructured periodic mesh (as the foam's) still reproduces the laminate exactly."""
+    msh, cell_tags = gmsh_laminate(0.3, 0.3, axis)
+    r = homogenize_fem(msh, cell_tags, {1: C_TI, 2: C_ISO}, degree=degree)
+    check_consistent(r)
+    assert rel_err(r.C, laminate([C_TI, C_ISO], [0.3, 0.7], axis)) < EXACT
+    assert r.info["volume_fractions"] == {1: pytest.approx(0.3), 2: pytest.approx(0.7)}
+
+
 def test_void_layer_is_exact_and_equals_solid_only_mesh():
     """A zero-stiffness void needs no ersatz: void-only dofs are removed, and a mesh of the solid alone, averaged
     over the whole cube, gives the same C."""
