@@ -95,6 +95,13 @@ def test_unit_strain_is_engineering_voigt():
         assert np.count_nonzero(E) == (1 if i == j else 2)
 
 
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_laminate_closed_forms_are_consistent(axis):
+    """The reference formulas themselves: equal phases give the phase; a vanishing phase gives the void laminate."""
+    assert rel_err(laminate([C_TI, C_TI], [0.3, 0.7], axis), C_TI) < EXACT
+    assert rel_err(laminate([C_TI, 1e-9 * C_ISO], [0.3, 0.7], axis), void_laminate(C_TI, 0.3, axis)) < 1e-7
+
+
 @pytest.mark.mpi
 @pytest.mark.parametrize("C", [C_ISO, C_TI], ids=["isotropic", "rotated-TI"])
 def test_homogeneous_cube_returns_the_material(C):
