@@ -404,7 +404,7 @@ def homogenize_fem(mesh: dolfinx.mesh.Mesh, cell_tags: dolfinx.mesh.MeshTagsMeta
     t_factor = time.perf_counter() - t0
 
     # ---- six right-hand sides
-    b = dolfinx_mpc.assemble_vector(L, mpc)
+    b = dolfinx.la.create_petsc_vector(V_mpc.dofmap.index_map, V_mpc.dofmap.index_map_bs)
     r = A.createVecLeft()
     solutions, iterations, residuals, t_solves = [], [], [], []
     direct = ksp.getType() == PETSc.KSP.Type.PREONLY
@@ -420,13 +420,16 @@ def homogenize_fem(mesh: dolfinx.mesh.Mesh, cell_tags: dolfinx.mesh.MeshTagsMeta
         if reason <= 0:
             raise RuntimeError(f"RVE solve for load case {LOAD_CASES[J]} did not converge: KSP reason {reason} "
                                f"(options {options})")
-        A.mult(v.vector, r)
-        r.aypx(-1.0, b)  # r = b - A x
-        history = [b.norm(), r.norm()] if direct else list(ksp.getConvergenceHistory())
+        if direct:
+            A.mult(v.vector, r)
+            r.aypx(-1.0, b)  # r = b - A x
+            history = [b.norm(), r.norm()]
+        else:
+            history = ksp.getConvergenceHistory()
         v.x.scatter_forward()
         mpc.backsubstitution(v.vector)
         solutions.append(v.x.array.copy())
-        iterations.append(int(ksp.getIterationNumber()) if not direct else 1)
+        iterations.append(1 if direct else int(ksp.getIterationNumber()))
         residuals.append([float(h) for h in history])
         t_solves.append(time.perf_counter() - t0)
 
