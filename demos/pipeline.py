@@ -38,4 +38,5 @@ def main(out: Path) -> None:
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("out"))
+    parser.add_argument("--ci", action="store_true", help="fast size for the test suite (no effect at this stage)")
     main(parser.parse_args().out)

@@ -1,0 +1,44 @@
+"""Every demo runs at its fast ``--ci`` size, serially and under ``mpirun -n 2``, and passes its own checks.
+
+Demos are discovered, not listed (as dolfinx's ``python/demo/test.py`` does), so a new demo is tested the day it
+lands. Each demo takes ``--ci`` (a small, fast size) and ``--out DIR``, checks its own result and exits non-zero
+when a check fails; this test only asserts the exit status, and shows the demo's output when it fails.
+
+The ``mpirun`` cases spawn their own ``mpirun``; they are not marked ``mpi`` (which would nest them inside the
+``mpirun -n 2 pytest -m mpi`` run of ``make test``).
+"""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+DEMOS = sorted((Path(__file__).resolve().parents[1] / "demos").glob("*.py"))
+TIMEOUT_S = 900
+
+
+def _run(command: list[str], cwd: Path) -> None:
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMPI_ALLOW_RUN_AS_ROOT": "1",
+           "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1", "OMPI_MCA_rmaps_base_oversubscribe": "1"}
+    result = subprocess.run(command, cwd=cwd, env=env, capture_output=True, text=True, timeout=TIMEOUT_S)
+    assert result.returncode == 0, (
+        f"{' '.join(command)} exited with {result.returncode}\n--- stdout\n{result.stdout[-4000:]}"
+        f"\n--- stderr\n{result.stderr[-4000:]}"
+    )
+
+
+def test_demos_are_found():
+    assert any(demo.name == "pipeline.py" for demo in DEMOS)
+
+
+@pytest.mark.parametrize("demo", DEMOS, ids=lambda p: p.stem)
+def test_demo_serial(demo, tmp_path):
+    _run([sys.executable, str(demo), "--ci", "--out", str(tmp_path / "out")], cwd=tmp_path)
+
+
+@pytest.mark.parametrize("demo", DEMOS, ids=lambda p: p.stem)
+def test_demo_mpirun(demo, tmp_path):
+    _run(["mpirun", "-n", "2", sys.executable, "-m", "mpi4py", str(demo), "--ci", "--out", str(tmp_path / "out")],
+         cwd=tmp_path)
