@@ -1,0 +1,258 @@
+"""FFT homogenization: closed forms (homogeneous, laminates), bounds, invariances, cross-checks, errors."""
+
+import numpy as np
+import pytest
+
+from homogenization.fft import (
+    FFTConvergenceError,
+    homogenize_fft,
+    reference_medium,
+    wave_directions,
+)
+from homogenization.tensors import (
+    closest_isotropic,
+    isotropic_voigt,
+    rotate_voigt,
+    rotation_from_axis,
+    transverse_isotropic_voigt,
+    voigt_to_mandel,
+)
+
+C_SOFT = isotropic_voigt(1.0, 0.3)
+TI = rotate_voigt(transverse_isotropic_voigt(E_t=3.0, E_l=0.4, nu_t=0.35, nu_tl=0.15, G_l=0.25),
+                  rotation_from_axis([1.0, 2.0, 2.0]))
+#: Voigt components that involve the layer normal (continuous stress) for layers normal to x, y, z.
+NORMAL_COMPONENTS = {0: [0, 4, 5], 1: [1, 3, 5], 2: [2, 3, 4]}
+
+
+def laminate(stiffnesses, fractions, axis):
+    """Exact rank-one laminate: stress components N (involving the normal) and strains T (the others) continuous.
+
+    With A = ⟨C_NN⁻¹⟩: C*_NN = A⁻¹, C*_NT = A⁻¹⟨C_NN⁻¹C_NT⟩, C*_TN = C*_NTᵀ,
+    C*_TT = ⟨C_TT − C_TN C_NN⁻¹ C_NT⟩ + ⟨C_TN C_NN⁻¹⟩ A⁻¹ ⟨C_NN⁻¹ C_NT⟩.
+    """
+    N = NORMAL_COMPONENTS[axis]
+    T = [i for i in range(6) if i not in N]
+    avg = lambda f: sum(w * f(C) for C, w in zip(stiffnesses, fractions))  # noqa: E731
+    inv_nn = lambda C: np.linalg.inv(C[np.ix_(N, N)])  # noqa: E731
+    A_inv = np.linalg.inv(avg(inv_nn))
+    B = avg(lambda C: inv_nn(C) @ C[np.ix_(N, T)])
+    D = avg(lambda C: C[np.ix_(T, T)] - C[np.ix_(T, N)] @ inv_nn(C) @ C[np.ix_(N, T)])
+    out = np.empty((6, 6))
+    out[np.ix_(N, N)] = A_inv
+    out[np.ix_(N, T)] = A_inv @ B
+    out[np.ix_(T, N)] = (A_inv @ B).T
+    out[np.ix_(T, T)] = D + B.T @ A_inv @ B
+    return out
+
+
+def layered_image(n, axis, n_stiff):
+    img = np.zeros((n, n, n), dtype=np.int8)
+    index = [slice(None)] * 3
+    index[axis] = slice(1, 1 + n_stiff)
+    img[tuple(index)] = 1
+    return img
+
+
+def sphere_image(n, radius, centre=(0.5, 0.5, 0.5)):
+    x = (np.arange(n) + 0.5) / n
+    X, Y, Z = np.meshgrid(x, x, x, indexing="ij")
+    d2 = sum(np.minimum(np.abs(c - x0), 1 - np.abs(c - x0)) ** 2 for c, x0 in zip((X, Y, Z), centre))
+    return (d2 < radius**2).astype(np.int8)
+
+
+def rel(A, B):
+    return np.abs(A - B).max() / np.abs(B).max()
+
+
+# --------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("C", [C_SOFT, TI], ids=["isotropic", "rotated-TI"])
+@pytest.mark.parametrize("scheme,discretization", [("cg", "rotated"), ("cg", "spectral"), ("basic", "spectral")])
+def test_homogeneous_returns_itself(C, scheme, discretization):
+    r = homogenize_fft(np.zeros((6, 7, 8), dtype=int), [C], scheme=scheme, discretization=discretization)
+    assert rel(r.C, C) < 1e-12
+    assert r.iterations == [0] * 6 and r.converged and r.method == "fft"
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+@pytest.mark.parametrize("contrast", [10.0, 1000.0])
+@pytest.mark.parametrize("scheme,discretization,n",
+                         [("cg", "rotated", 8), ("cg", "spectral", 9), ("basic", "spectral", 9)])
+def test_laminate_matches_closed_form(axis, contrast, scheme, discretization, n):
+    if scheme == "basic" and contrast > 10:
+        pytest.skip("the basic scheme needs O(contrast) iterations; contrast 10 checks it")
+    n_stiff = 3
+    stiff = isotropic_voigt(contrast, 0.2)
+    r = homogenize_fft(layered_image(n, axis, n_stiff), [C_SOFT, stiff], scheme=scheme,
+                       discretization=discretization, tol=1e-10)
+    expected = laminate([C_SOFT, stiff], [1 - n_stiff / n, n_stiff / n], axis)
+    assert rel(r.C, expected) < 1e-6
+    assert r.asymmetry < 1e-8
+
+
+@pytest.mark.parametrize("axis", [0, 2])
+def test_laminate_of_rotated_ti_layers(axis):
+    r = homogenize_fft(layered_image(8, axis, 5), [C_SOFT, TI], tol=1e-10)
+    assert rel(r.C, laminate([C_SOFT, TI], [3 / 8, 5 / 8], axis)) < 1e-6
+
+
+def test_spectral_even_grid_nyquist_error_vanishes_with_n():
+    """Even grid + spectral: Nyquist frequencies carry no fluctuation. A layer with an odd number of voxels has
+    Nyquist content, so the laminate is not exact but converges (~N⁻²); an even number of voxels is exact."""
+    stiff = isotropic_voigt(10.0, 0.2)
+    errors = []
+    for n, n_stiff in ((16, 7), (32, 13), (16, 6)):
+        r = homogenize_fft(layered_image(n, 0, n_stiff), [C_SOFT, stiff], discretization="spectral", tol=1e-10,
+                           macro_strains=np.eye(6)[:1])
+        expected = laminate([C_SOFT, stiff], [1 - n_stiff / n, n_stiff / n], 0)
+        errors.append(rel(r.C_raw[:, 0], expected[:, 0]))
+    assert 1e-3 < errors[0] < 1e-2 and 3.0 < errors[0] / errors[1] < 6.0
+    assert errors[2] < 1e-12
+
+
+def hashin_shtrikman(k, g, f):
+    """HS lower/upper bounds (κ, μ) of a two-phase isotropic mixture (k, g: moduli; f: fractions)."""
+    def bound(i):
+        j = 1 - i
+        K = k[i] + f[j] / (1 / (k[j] - k[i]) + 3 * f[i] / (3 * k[i] + 4 * g[i]))
+        G = g[i] + f[j] / (1 / (g[j] - g[i]) + 6 * f[i] * (k[i] + 2 * g[i]) / (5 * g[i] * (3 * k[i] + 4 * g[i])))
+        return K, G
+    soft, stiff = (0, 1) if k[0] < k[1] else (1, 0)
+    return bound(soft), bound(stiff)
+
+
+@pytest.mark.parametrize("discretization", ["rotated", "spectral"])
+def test_spherical_inclusion_between_hashin_shtrikman_bounds(discretization):
+    img = sphere_image(16, 0.3)
+    stiff = isotropic_voigt(10.0, 0.25)
+    r = homogenize_fft(img, [C_SOFT, stiff], discretization=discretization, tol=1e-8)
+    f1 = img.mean()
+    moduli = [closest_isotropic(C) for C in (C_SOFT, stiff)]
+    k = [m.E / (3 * (1 - 2 * m.nu)) for m in moduli]
+    g = [m.E / (2 * (1 + m.nu)) for m in moduli]
+    (k_lo, g_lo), (k_hi, g_hi) = hashin_shtrikman(k, g, [1 - f1, f1])
+    fit = r.isotropic_fit()
+    k_eff, g_eff = fit.E / (3 * (1 - 2 * fit.nu)), fit.E / (2 * (1 + fit.nu))
+    assert k_lo < k_eff < k_hi
+    assert g_lo < g_eff < g_hi
+    assert np.linalg.eigvalsh(voigt_to_mandel(r.C)).min() > 0  # positive definite
+    assert r.asymmetry < 1e-6
+
+
+def test_rotated_and_spectral_agree_as_n_grows():
+    stiff = isotropic_voigt(10.0, 0.25)
+    gaps = []
+    for n in (8, 16, 32):
+        img = sphere_image(n, 0.3)
+        C = [homogenize_fft(img, [C_SOFT, stiff], discretization=d, tol=1e-8,
+                            macro_strains=np.eye(6)[[0, 3]]).C_raw[:, [0, 3]] for d in ("rotated", "spectral")]
+        gaps.append(rel(C[0], C[1]))
+    assert gaps[2] < gaps[1] < gaps[0]
+    assert gaps[2] < 1e-2
+
+
+def test_void_phase_cg_converges_and_basic_refuses():
+    img = sphere_image(12, 0.35)  # spherical pore, the solid percolates
+    materials = [C_SOFT, np.zeros((6, 6))]
+    r = homogenize_fft(img, materials, tol=1e-8)
+    assert r.converged and max(r.iterations) < 200
+    assert np.all(np.isfinite(r.C))
+    eig = np.linalg.eigvalsh(voigt_to_mandel(r.C))
+    assert 0 < eig.min() and eig.max() < np.linalg.eigvalsh(voigt_to_mandel(C_SOFT)).max()
+    assert r.C[0, 0] < (1 - img.mean()) * C_SOFT[0, 0]  # below the Voigt bound
+    with pytest.raises(ValueError, match="basic.*cannot handle.*void"):
+        homogenize_fft(img, materials, scheme="basic")
+
+
+def test_basic_at_huge_contrast_reports_instead_of_nan():
+    img = sphere_image(8, 0.3)
+    materials = [C_SOFT, 1e9 * C_SOFT]
+    with pytest.raises(FFTConvergenceError, match="did not reach tol") as info:
+        homogenize_fft(img, materials, scheme="basic", maxiter=30)
+    assert np.all(np.isfinite(info.value.residuals)) and len(info.value.residuals) == 31
+    r = homogenize_fft(img, materials, scheme="basic", maxiter=30, raise_on_failure=False,
+                       macro_strains=np.eye(6)[:1])
+    assert not r.converged and np.all(np.isfinite(r.C_raw[:, 0])) and r.info["failures"]
+
+
+def test_basic_and_cg_agree_on_finite_contrast():
+    img = sphere_image(10, 0.3)
+    materials = [C_SOFT, isotropic_voigt(5.0, 0.2)]
+    cg = homogenize_fft(img, materials, tol=1e-9)
+    basic = homogenize_fft(img, materials, scheme="basic", tol=1e-9)
+    assert rel(basic.C, cg.C) < 1e-7
+    ref = basic.info["reference_medium"]
+    k, g = np.array([1 / 1.2, 5 / 1.8]), np.array([1 / 2.6, 5 / 2.4])  # κ = E/(3(1-2ν)), μ = E/(2(1+ν))
+    contrast = max((k[1] - k[0]) / (k[1] + k[0]), (g[1] - g[0]) / (g[1] + g[0]))
+    assert ref["contraction_factor"] == pytest.approx(contrast, rel=1e-12)
+    assert sum(cg.iterations) < sum(basic.iterations)
+
+
+def test_reference_medium_is_crafts_average_for_isotropic_phases():
+    E, nu = np.array([1.0, 7.0]), np.array([0.3, 0.2])
+    lam, mu = E * nu / ((1 + nu) * (1 - 2 * nu)), E / (2 * (1 + nu))
+    ref = reference_medium([voigt_to_mandel(isotropic_voigt(e, n)) for e, n in zip(E, nu)])
+    assert ref.mu == pytest.approx(mu.mean(), rel=1e-12)
+    assert ref.lam == pytest.approx(lam.mean(), rel=1e-12)  # the stiffer phase has both larger moduli
+    assert 0 < ref.rate < 1
+
+
+def test_rotating_the_image_by_90_degrees_rotates_c():
+    rng = np.random.default_rng(3)
+    img = (rng.random((8, 8, 8)) < 0.4).astype(np.int8)
+    materials = [C_SOFT, isotropic_voigt(8.0, 0.2)]
+    C = homogenize_fft(img, materials, tol=1e-10).C
+    # np.rot90 over axes (0, 1): new(x, y) = old(y, 1 - x), a +90° rotation about z.
+    C_rot = homogenize_fft(np.rot90(img, 1, axes=(0, 1)), materials, tol=1e-10).C
+    R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    assert rel(C, C_rot) > 1e-3  # the image is anisotropic: the test can fail
+    assert rel(C_rot, rotate_voigt(C, R)) < 1e-7
+
+
+def test_fields_macro_strains_and_callback():
+    img = sphere_image(8, 0.3)
+    materials = [C_SOFT, isotropic_voigt(4.0, 0.2)]
+    full = homogenize_fft(img, materials, tol=1e-10)
+    calls = []
+    strains = np.array([[0.0, 0.0, 0.0, 0.02, 0.0, 0.0], [1e-3, 2e-3, 0.0, 0.0, 0.0, 0.0]])
+    part = homogenize_fft(img, materials, tol=1e-10, macro_strains=strains, return_fields=True,
+                          callback=lambda case, it, res: calls.append((case, it, res)))
+    assert np.allclose(part.C_raw[:, 3], full.C_raw[:, 3], rtol=1e-7, atol=1e-12)
+    assert np.all(np.isnan(part.C_raw[:, [0, 1, 2, 4, 5]]))
+    assert np.allclose(part.info["mean_stress"][1], full.C_raw @ strains[1], rtol=1e-7, atol=1e-12)
+    strain, stress = part.fields["strain"], part.fields["stress"]
+    assert strain.shape == (2, 6, 8, 8, 8)
+    assert np.allclose(strain.mean(axis=(2, 3, 4)), strains, atol=1e-14)
+    assert np.allclose(stress.mean(axis=(2, 3, 4)), part.info["mean_stress"], rtol=1e-10, atol=1e-14)
+    assert {c for c, _, _ in calls} == {0, 1}
+    assert calls[-1][1] == part.iterations[1] and calls[-1][2] == part.residuals[1][-1] <= 1e-10
+
+
+def test_wave_directions_zero_where_g_vanishes():
+    n = wave_directions((4, 4, 4), "rotated")
+    norm = np.sqrt((n**2).sum(axis=0))
+    assert norm[0, 0, 0] == 0 and norm[2, 2, 0] == 0 and norm[2, 0, 2] == 0  # ξ = 0 and hourglass modes
+    assert np.allclose(norm[1, 2, 1], 1.0)
+    s = wave_directions((5, 4, 4), "spectral")
+    assert np.all(s[:, :, 2] == 0) and np.all(s[:, :, :, 2] == 0)  # Nyquist planes of the even axes
+    assert np.allclose(np.sqrt((s[:, 1:, :2, :2] ** 2).sum(axis=0))[:, 1:], 1.0)
+
+
+@pytest.mark.parametrize("phases,materials,kwargs,match", [
+    (np.zeros((4, 4, 4), int) + 2, [C_SOFT, C_SOFT], {}, r"phase ids \[2\].*no material"),
+    (np.zeros((4, 4), int), [C_SOFT], {}, "3-D"),
+    (np.zeros((4, 4, 4)), [C_SOFT], {}, "integer phase ids"),
+    (np.zeros((4, 4, 4), int) - 1, [C_SOFT], {}, ">= 0"),
+    (np.zeros((4, 4, 4), int), [C_SOFT + np.triu(np.ones((6, 6)), 1)], {}, r"materials\[0\] is not symmetric"),
+    (np.zeros((4, 4, 4), int), [np.eye(3)], {}, r"materials\[0\] must be a 6×6"),
+    (np.zeros((4, 4, 4), int), [-C_SOFT], {}, "not positive definite"),
+    (np.zeros((4, 4, 4), int), [C_SOFT], {"tol": -1e-6}, "tol must satisfy"),
+    (np.zeros((4, 4, 4), int), [C_SOFT], {"scheme": "fancy"}, "scheme must be one of"),
+    (np.zeros((4, 4, 4), int), [C_SOFT], {"discretization": "hex27"}, "discretization must be one of"),
+    (np.zeros((4, 4, 4), int), [C_SOFT], {"maxiter": 0}, "maxiter must be a positive integer"),
+    (np.zeros((4, 4, 4), int), [C_SOFT], {"threads": 0}, "threads must be a positive integer"),
+    (np.zeros((4, 4, 4), int), [C_SOFT], {"macro_strains": np.ones((2, 3))}, r"\(n_cases, 6\)"),
+])
+def test_bad_inputs(phases, materials, kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        homogenize_fft(phases, materials, **kwargs)
