@@ -1,0 +1,120 @@
+"""The ``homogenize`` command line: image and foam inputs, JSON content, argument errors (exit code 2)."""
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from homogenization.cli import main
+from homogenization.fft import homogenize_fft
+from homogenization.tensors import closest_transverse_isotropic, isotropic_voigt
+
+
+def porous_image(n=8):
+    """A solid with a spherical pore and a cylindrical channel along x: transversely isotropic about x."""
+    x = (np.arange(n) + 0.5) / n - 0.5
+    X, Y, Z = np.meshgrid(x, x, x, indexing="ij")
+    return ~((X**2 + Y**2 + Z**2 < 0.3**2) | (Y**2 + Z**2 < 0.15**2))
+
+
+@pytest.fixture
+def image_file(tmp_path):
+    path = tmp_path / "phases.npy"
+    np.save(path, porous_image())
+    return path
+
+
+def test_image_to_json(image_file, tmp_path, capsys):
+    out = tmp_path / "result.json"
+    assert main(["--image", str(image_file), "--E-solid", "2", "--nu-solid", "0.25", "--tol", "1e-8",
+                 "--threads", "1", "--out", str(out)]) == 0
+    data = json.loads(out.read_text())
+    C = np.array(data["C"])
+    materials = [np.zeros((6, 6)), isotropic_voigt(2.0, 0.25)]
+    expected = homogenize_fft(porous_image().astype(np.int8), materials, tol=1e-8, threads=1).C
+    assert np.allclose(C, expected, rtol=1e-12, atol=1e-14)
+    ti = closest_transverse_isotropic(expected, axis=0)
+    assert data["ti_fit"]["axis"] == [1.0, 0.0, 0.0]
+    assert data["ti_fit"]["E_l"] == pytest.approx(ti.E_l, rel=1e-10)
+    assert data["ti_fit"]["error"] == pytest.approx(ti.error, rel=1e-6, abs=1e-12)
+    assert data["engineering_constants"]["E1"] > data["engineering_constants"]["E2"]  # channel along x
+    assert data["inputs"]["E_solid"] == 2.0 and data["inputs"]["image"] == str(image_file)
+    assert data["info"]["scheme"] == "cg" and data["info"]["discretization"] == "rotated"
+    assert len(data["iterations"]) == 6 and data["converged"] is True
+    assert data["software"]["fenicsfoam"] and data["solid_fraction"] == pytest.approx(porous_image().mean())
+    assert "isotropic_fit" in data and data["info"]["time_per_iteration_s"] > 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["phases.npy", "result.json"]  # no temporary file left
+    assert "TI fit (l = x)" in capsys.readouterr().out
+
+
+def run_error(argv, capsys):
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    return capsys.readouterr().err
+
+
+@pytest.mark.parametrize("extra,match", [
+    (["--tol", "-1"], "--tol must be in"),
+    (["--nu-solid", "0.5"], "--nu-solid must be in"),
+    (["--E-solid", "0"], "--E-solid must be > 0"),
+    (["--threads", "0"], "--threads must be >= 1"),
+    (["--maxiter", "0"], "--maxiter must be >= 1"),
+    (["--scheme", "fancy"], "--scheme: invalid choice"),
+    (["--density", "0.2"], "not allowed with argument"),
+    (["--out", "/nonexistent-dir/r.json"], "--out .*does not exist"),
+])
+def test_bad_arguments_exit_2(image_file, capsys, extra, match):
+    err = run_error(["--image", str(image_file), *extra], capsys)
+    assert re.search(match, err), err
+
+
+def test_bad_images_exit_2(tmp_path, capsys):
+    assert "no such file" in run_error(["--image", str(tmp_path / "missing.npy")], capsys)
+    np.save(tmp_path / "three.npy", np.full((4, 4, 4), 2, dtype=np.int8))
+    assert "0/1 integer phases" in run_error(["--image", str(tmp_path / "three.npy")], capsys)
+    np.save(tmp_path / "flat.npy", np.ones((4, 4), dtype=bool))
+    assert "3-D array" in run_error(["--image", str(tmp_path / "flat.npy")], capsys)
+    (tmp_path / "junk.npy").write_text("not an array")
+    assert "cannot read" in run_error(["--image", str(tmp_path / "junk.npy")], capsys)
+
+
+def test_foam_arguments_are_checked(capsys):
+    assert "--gamma must be in (0, 1]" in run_error(["--density", "0.2", "--gamma", "1.5"], capsys)
+    assert "--density must be in (0, 1)" in run_error(["--density", "1.2"], capsys)
+
+
+def test_non_percolating_solid_fails_with_exit_1(tmp_path, capsys):
+    image = np.zeros((6, 6, 6), dtype=bool)
+    image[2:4, 2:4, 2:4] = True  # an isolated cube of solid: C_hom = 0
+    np.save(tmp_path / "island.npy", image)
+    assert main(["--image", str(tmp_path / "island.npy"), "--out", str(tmp_path / "r.json")]) == 1
+    assert "not positive definite" in capsys.readouterr().err
+    assert not (tmp_path / "r.json").exists()
+
+
+def test_console_script(image_file, tmp_path):
+    script = Path(sys.executable).parent / "homogenize"
+    out = tmp_path / "r.json"
+    ok = subprocess.run([str(script), "--image", str(image_file), "--out", str(out)], capture_output=True, text=True)
+    assert ok.returncode == 0, ok.stderr
+    assert np.array(json.loads(out.read_text())["C"]).shape == (6, 6)
+    bad = subprocess.run([str(script), "--image", str(image_file), "--tol", "2"], capture_output=True, text=True)
+    assert bad.returncode == 2 and "--tol must be in (0, 1)" in bad.stderr
+
+
+def test_foam_path(tmp_path):
+    foam_module = pytest.importorskip("meshes.foam")
+    out = tmp_path / "foam.json"
+    args = dict(density=0.3, gamma=0.5, cells=4, seed=2, resolution=16)
+    assert main([f"--{k}={v}" for k, v in args.items()] + ["--out", str(out)]) == 0
+    data = json.loads(out.read_text())
+    image = foam_module.VoronoiFoam(n_cells=4, density=0.3, gamma=0.5, seed=2).voxelize(16)
+    expected = homogenize_fft(image.astype(np.int8), [np.zeros((6, 6)), isotropic_voigt(1.0, 0.3)]).C
+    assert np.allclose(np.array(data["C"]), expected, rtol=1e-10, atol=1e-14)
+    assert data["inputs"]["density"] == 0.3 and data["inputs"]["gamma"] == 0.5
+    assert data["solid_fraction"] == pytest.approx(image.mean())
