@@ -230,7 +230,9 @@ class _Workspace:
         self.plan_s = time.perf_counter() - t0
         self.fft_s = 0.0
         self.fft_calls = 0
-        self.n = wave_directions(self.shape, discretization)
+        # n repeated along the last axis, so that the Fourier kernel runs on float64 views of the complex
+        # spectrum ((re, im) pairs) without complex × real casting.
+        self.n2 = np.repeat(wave_directions(self.shape, discretization), 2, axis=-1)
         self.vectors = [np.empty((6, N1, N2, N3)) for _ in range(n_vectors)]
         # Constitutive update σ = C_b ε + Σ_{p≠b} m_p (C_p − C_b) ε, b = the most frequent phase (no mask needed).
         ids, counts = np.unique(phases, return_counts=True)
@@ -246,17 +248,17 @@ class _Workspace:
         groups = np.array_split(np.arange(len(self.blocks)), threads)
         self.groups = [[self.blocks[i] for i in g] for g in groups if len(g)]
         B, H = per_block, N3 // 2 + 1
-        self.scratch = [dict(v=np.empty((3, B, N2, H), complex), t=np.empty((B, N2, H), complex),
-                             s=np.empty((B, N2, H), complex), r=np.empty((6, B * N2 * N3)))
+        self.scratch = [dict(v=np.empty((3, B, N2, 2 * H)), t=np.empty((B, N2, 2 * H)),
+                             s=np.empty((B, N2, 2 * H)), r=np.empty((6, B * N2 * N3)))
                         for _ in self.groups]
         self.pool = ThreadPoolExecutor(len(self.groups)) if len(self.groups) > 1 else None
         # Parseval on the half spectrum: planes m3 = 0 (and N3/2 if N3 is even) count once, the others twice.
-        self.single_planes = [0] + ([H - 1] if N3 % 2 == 0 and H > 1 else [])
+        self.single_planes = [slice(0, 2)] + ([slice(2 * H - 2, 2 * H)] if N3 % 2 == 0 and H > 1 else [])
 
     @property
     def nbytes(self) -> int:
         """Bytes held by the ``N³`` work arrays (FFT buffers, wave vectors, vectors, masks, block scratch)."""
-        arrays = [self.real, self.hat, self.n, *self.vectors, *(m for _, m in self.jumps)]
+        arrays = [self.real, self.hat, self.n2, *self.vectors, *(m for _, m in self.jumps)]
         arrays += [a for s in self.scratch for a in s.values()]
         return int(sum(a.nbytes for a in arrays))
 
@@ -299,14 +301,20 @@ class _Workspace:
             eps = strain[:, i0:i1].reshape(6, -1)
             sig = out[:, i0:i1].reshape(6, -1)
             tmp = scratch["r"][:, : eps.shape[1]]
-            if self.base is None:
-                sig[...] = 0.0
-            else:
+            empty = self.base is None
+            if not empty:
                 np.matmul(self.base, eps, out=sig)
             for dC, mask in self.jumps:
-                np.matmul(dC, eps, out=tmp)
-                np.multiply(tmp, mask[i0:i1].reshape(1, (i1 - i0) * N2N3), out=tmp)
-                sig += tmp
+                m = mask[i0:i1].reshape(1, (i1 - i0) * N2N3)
+                np.matmul(dC, eps, out=sig if empty else tmp)
+                if empty:
+                    sig *= m
+                    empty = False
+                else:
+                    tmp *= m
+                    sig += tmp
+            if empty:  # every phase present is void
+                sig[...] = 0.0
         self.run(kernel)
 
     def green(self, a: float, c: float, residual: bool = False) -> float:
@@ -317,7 +325,7 @@ class _Workspace:
         ``Σ_x |G[τ](x)|² = N⁻³ Σ_ξ (2|τ̂n|² − |n·τ̂n|²)`` over the full spectrum (Parseval).
         """
         scale = a / self.size
-        hat, n = self.hat, self.n
+        hat, n = self.hat.view(np.float64), self.n2  # (re, im) pairs; n is real, so it acts on both alike
         single = self.single_planes
 
         def kernel(i0, i1, scratch):
@@ -339,24 +347,22 @@ class _Workspace:
             np.multiply(v[2], n2, out=t)
             s += t
             out = None
-            if residual:
-                out = 2.0 * (2.0 * np.vdot(v, v).real - np.vdot(s, s).real)
+            if residual:  # half spectrum: planes m3 = 0 (and Nyquist) once, the others twice
+                out = 2.0 * (2.0 * np.vdot(v, v) - np.vdot(s, s))
                 for k in single:
-                    out -= 2.0 * np.vdot(v[..., k], v[..., k]).real - np.vdot(s[..., k], s[..., k]).real
+                    out -= 2.0 * np.vdot(v[..., k], v[..., k]) - np.vdot(s[..., k], s[..., k])
             s *= c
             for i, ni in enumerate((n0, n1, n2)):  # w = v − c s n
                 np.multiply(s, ni, out=t)
                 v[i] -= t
-            v *= scale
+            v *= scale * _SQRT2
             for i, ni in enumerate((n0, n1, n2)):  # diagonal: 2 n_i w_i
                 np.multiply(v[i], ni, out=T[i])
-                T[i] *= 2.0
+                T[i] *= _SQRT2
             for I, (i, j) in zip((3, 4, 5), ((1, 2), (0, 2), (0, 1))):  # shear (Mandel): √2 (n_i w_j + n_j w_i)
-                ni, nj = (n0, n1, n2)[i], (n0, n1, n2)[j]
-                np.multiply(v[j], ni, out=T[I])
-                np.multiply(v[i], nj, out=t)
+                np.multiply(v[j], (n0, n1, n2)[i], out=T[I])
+                np.multiply(v[i], (n0, n1, n2)[j], out=t)
                 T[I] += t
-                T[I] *= _SQRT2
             return out
 
         total = self.run(kernel)

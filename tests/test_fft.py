@@ -19,6 +19,14 @@ from homogenization.tensors import (
 )
 
 C_SOFT = isotropic_voigt(1.0, 0.3)
+
+
+@pytest.fixture(autouse=True)
+def one_thread(monkeypatch):
+    """Default to one thread: on a shared 2-core machine FFTW threads waiting for a descheduled sibling make
+    runs up to 30× slower. ``test_threads_give_the_same_result`` exercises the threaded path explicitly."""
+    monkeypatch.setattr("homogenization.fft._default_threads", lambda: 1)
+
 TI = rotate_voigt(transverse_isotropic_voigt(E_t=3.0, E_l=0.4, nu_t=0.35, nu_tl=0.15, G_l=0.25),
                   rotation_from_axis([1.0, 2.0, 2.0]))
 #: Voigt components that involve the layer normal (continuous stress) for layers normal to x, y, z.
@@ -207,6 +215,14 @@ def test_rotating_the_image_by_90_degrees_rotates_c():
     R = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     assert rel(C, C_rot) > 1e-3  # the image is anisotropic: the test can fail
     assert rel(C_rot, rotate_voigt(C, R)) < 1e-7
+
+
+def test_threads_give_the_same_result():
+    img = sphere_image(10, 0.3)
+    materials = [np.zeros((6, 6)), C_SOFT, isotropic_voigt(3.0, 0.2)]
+    img[:, :, :2] = 2  # three phases, one of them void
+    C = [homogenize_fft(img, materials, tol=1e-10, threads=t).C for t in (1, 3)]
+    assert rel(C[1], C[0]) < 1e-9  # only the summation order of the inner products differs
 
 
 def test_fields_macro_strains_and_callback():
