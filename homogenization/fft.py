@@ -90,6 +90,9 @@ DEFAULT_MAXITER = {"cg": 1000, "basic": 5000}
 
 _SQRT2 = np.sqrt(2.0)
 _MANDEL = np.array([1.0, 1.0, 1.0, _SQRT2, _SQRT2, _SQRT2])  # Voigt (engineering) strain → Mandel: divide
+_ONES = np.ones(6)
+#: ``Mandel = a/N³ · GREEN_TO_MANDEL ⊙ (what _Workspace.green leaves in the spectrum, transformed back)``
+GREEN_TO_MANDEL = np.array([2.0, 2.0, 2.0, _SQRT2, _SQRT2, _SQRT2])
 _BLOCK_VOXELS = 2**15  # voxels per block of planes: the block's temporaries stay in L2/L3 cache
 
 
@@ -211,15 +214,19 @@ class _Workspace:
     """Planned FFTs, the preallocated ``N³`` arrays and block-wise kernels on ``threads`` threads.
 
     ``real`` (6, N1, N2, N3) and ``hat`` (6, N1, N2, N3//2+1) are the FFT buffers: ``forward`` maps ``real`` to
-    ``hat`` (unnormalised), ``backward`` maps ``hat`` to ``real`` (unnormalised, destroys ``hat``). The
-    normalisation ``1/N³`` is folded into :meth:`green`.
+    ``hat``, ``backward`` maps ``hat`` to ``real`` (both unnormalised; ``backward`` destroys ``hat``).
+
+    Representations, chosen so that no pass is spent on rescaling: strains (CG vectors, ``ε``) are Mandel;
+    :meth:`constitutive` writes the stress as tensor components ``σ_ij`` (= Voigt stress), which is what
+    :meth:`green` reads; :meth:`green` leaves ``n_i w_i`` (diagonal) and ``n_i w_j + n_j w_i`` (shear) in ``hat``,
+    so after ``backward`` the Mandel field is ``(a/N³) · GREEN_TO_MANDEL ⊙ real`` — a per-component factor that
+    the callers fold into their :meth:`axpy` coefficients.
     """
 
     def __init__(self, phases, stiffnesses, discretization, threads, n_vectors):
         self.shape = phases.shape
         N1, N2, N3 = self.shape
         self.size = N1 * N2 * N3
-        self.threads = threads
         t0 = time.perf_counter()
         self.real = pyfftw.empty_aligned((6, N1, N2, N3), dtype=np.float64)
         self.hat = pyfftw.empty_aligned((6, N1, N2, N3 // 2 + 1), dtype=np.complex128)
@@ -234,19 +241,19 @@ class _Workspace:
         # spectrum ((re, im) pairs) without complex × real casting.
         self.n2 = np.repeat(wave_directions(self.shape, discretization), 2, axis=-1)
         self.vectors = [np.empty((6, N1, N2, N3)) for _ in range(n_vectors)]
-        # Constitutive update σ = C_b ε + Σ_{p≠b} m_p (C_p − C_b) ε, b = the most frequent phase (no mask needed).
+        # Constitutive update σ = C_b ε + Σ_{p≠b} m_p (C_p − C_b) ε, b = the most frequent phase (no mask needed);
+        # the matrices map Mandel strain to tensor stress components.
         ids, counts = np.unique(phases, return_counts=True)
         self.fractions = {int(p): c / self.size for p, c in zip(ids, counts)}
         base = int(ids[np.argmax(counts)])
-        self.base = stiffnesses[base] if np.any(stiffnesses[base]) else None
-        zero = np.zeros((6, 6))
-        self.jumps = [(stiffnesses[p] - (zero if self.base is None else self.base),
-                       (phases == p).astype(np.float64)) for p in map(int, ids) if p != base]
+        to_tensor = {p: stiffnesses[int(p)] / _MANDEL[:, None] for p in ids}
+        self.base = to_tensor[base] if np.any(to_tensor[base]) else None
+        self.jumps = [(to_tensor[p] - (0.0 if self.base is None else self.base), (phases == p).astype(np.float64))
+                      for p in ids if p != base]
         # Blocks of whole planes along axis 1, split into one contiguous run per thread.
         per_block = max(1, min(_BLOCK_VOXELS // (N2 * N3), -(-N1 // threads)))
-        self.blocks = [(i, min(i + per_block, N1)) for i in range(0, N1, per_block)]
-        groups = np.array_split(np.arange(len(self.blocks)), threads)
-        self.groups = [[self.blocks[i] for i in g] for g in groups if len(g)]
+        blocks = [(i, min(i + per_block, N1)) for i in range(0, N1, per_block)]
+        self.groups = [[blocks[i] for i in g] for g in np.array_split(np.arange(len(blocks)), threads) if len(g)]
         B, H = per_block, N3 // 2 + 1
         self.scratch = [dict(v=np.empty((3, B, N2, 2 * H)), t=np.empty((B, N2, 2 * H)),
                              s=np.empty((B, N2, 2 * H)), r=np.empty((6, B * N2 * N3)))
@@ -293,11 +300,24 @@ class _Workspace:
         self.fft_s += time.perf_counter() - t0
         self.fft_calls += 1
 
-    def constitutive(self, out: np.ndarray, strain: np.ndarray):
-        """``out ← C(x) : strain`` (Mandel), one 6×6 product per phase and block."""
+    def mean_stress(self) -> np.ndarray:
+        """``⟨σ⟩`` (tensor components = Voigt stress) of the field just transformed: ``hat(ξ = 0)/N³``."""
+        return self.hat[:, 0, 0, 0].real / self.size
+
+    def constitutive(self, out: np.ndarray, strain: np.ndarray, update: tuple | None = None) -> float:
+        """``out ← C(x) : strain`` (tensor stress from Mandel strain); returns ``⟨strain, C : strain⟩`` (Mandel).
+
+        With ``update = (r, β)`` the strain is first updated in place, ``strain ← r + β strain`` (the CG search
+        direction), in the same pass over the blocks.
+        """
         N2N3 = self.shape[1] * self.shape[2]
+        weights = _MANDEL  # ⟨ε_M, σ_M⟩ = Σ_c √2^[c shear] ε_M[c] σ_t[c]
 
         def kernel(i0, i1, scratch):
+            if update is not None:
+                blk = strain[:, i0:i1]
+                blk *= update[1]
+                blk += update[0][:, i0:i1]
             eps = strain[:, i0:i1].reshape(6, -1)
             sig = out[:, i0:i1].reshape(6, -1)
             tmp = scratch["r"][:, : eps.shape[1]]
@@ -315,16 +335,19 @@ class _Workspace:
                     sig += tmp
             if empty:  # every phase present is void
                 sig[...] = 0.0
-        self.run(kernel)
+            return sum(weights[c] * float(np.vdot(eps[c], sig[c])) for c in range(6))
 
-    def green(self, a: float, c: float, residual: bool = False) -> float:
-        """In place on ``hat``: ``hat ← a/N³ (n⊗w + w⊗n)``, ``w = τ̂ n − c (n·τ̂n) n``; ``τ̂ = hat`` (Mandel).
+        return self.run(kernel)
 
-        ``a = 1, c = ½`` is the projection ``G`` (up to the IFFT normalisation); ``a = 1/(2μ0)``,
-        ``c = (λ0+μ0)/(λ0+2μ0)`` the Green operator ``Γ0``. With ``residual=True`` also returns
-        ``Σ_x |G[τ](x)|² = N⁻³ Σ_ξ (2|τ̂n|² − |n·τ̂n|²)`` over the full spectrum (Parseval).
+    def green(self, c: float, residual: bool = False) -> float:
+        """In place on ``hat`` (``τ̂``, tensor components): ``hat ← n ⊗ w + w ⊗ n``, ``w = τ̂ n − c (n·τ̂n) n``.
+
+        The result is stored as ``n_i w_i`` (11, 22, 33) and ``n_i w_j + n_j w_i`` (23, 13, 12).
+        ``c = ½`` gives the projection ``G[τ] = 2 sym(n ⊗ w)``; ``c = (λ0+μ0)/(λ0+2μ0)`` gives ``2μ0 Γ0[τ]``.
+        The Mandel field is ``a · GREEN_TO_MANDEL ⊙ hat`` (``a = 1`` for ``G``, ``1/(2μ0)`` for ``Γ0``).
+        With ``residual=True`` also returns ``Σ_x |G[τ](x)|² = N⁻³ Σ_ξ (2|τ̂n|² − |n·τ̂n|²)`` over the full
+        spectrum (Parseval).
         """
-        scale = a / self.size
         hat, n = self.hat.view(np.float64), self.n2  # (re, im) pairs; n is real, so it acts on both alike
         single = self.single_planes
 
@@ -333,7 +356,6 @@ class _Workspace:
             n0, n1, n2 = n[0, i0:i1], n[1, i0:i1], n[2, i0:i1]
             m = i1 - i0
             v, t, s = scratch["v"][:, :m], scratch["t"][:m], scratch["s"][:m]
-            T[3:] *= 1.0 / _SQRT2  # Mandel → tensor shear components
             # v = τ n, τ = [[T0, T5, T4], [T5, T1, T3], [T4, T3, T2]]
             for i, (ja, jb, jc) in enumerate(((0, 5, 4), (5, 1, 3), (4, 3, 2))):
                 np.multiply(T[ja], n0, out=v[i])
@@ -355,11 +377,9 @@ class _Workspace:
             for i, ni in enumerate((n0, n1, n2)):  # w = v − c s n
                 np.multiply(s, ni, out=t)
                 v[i] -= t
-            v *= scale * _SQRT2
-            for i, ni in enumerate((n0, n1, n2)):  # diagonal: 2 n_i w_i
+            for i, ni in enumerate((n0, n1, n2)):
                 np.multiply(v[i], ni, out=T[i])
-                T[i] *= _SQRT2
-            for I, (i, j) in zip((3, 4, 5), ((1, 2), (0, 2), (0, 1))):  # shear (Mandel): √2 (n_i w_j + n_j w_i)
+            for I, (i, j) in zip((3, 4, 5), ((1, 2), (0, 2), (0, 1))):
                 np.multiply(v[j], (n0, n1, n2)[i], out=T[I])
                 np.multiply(v[i], (n0, n1, n2)[j], out=t)
                 T[I] += t
@@ -368,29 +388,27 @@ class _Workspace:
         total = self.run(kernel)
         return total / self.size if residual else 0.0
 
-    def dot(self, x: np.ndarray, y: np.ndarray) -> float:
-        """``Σ_x x·y`` over all voxels and components."""
-        return self.run(lambda i0, i1, _: sum(float(np.vdot(x[c, i0:i1], y[c, i0:i1])) for c in range(6)))
+    def dot(self, x: np.ndarray, y: np.ndarray, weights: np.ndarray = _ONES) -> float:
+        """``Σ_x Σ_c weights[c] x_c y_c`` over all voxels."""
+        def kernel(i0, i1, _):
+            return sum(weights[c] * float(np.vdot(x[c, i0:i1], y[c, i0:i1])) for c in range(6))
+        return self.run(kernel)
 
-    def axpy(self, alpha: float, x: np.ndarray, y: np.ndarray, norm: bool = False) -> float:
-        """``y ← y + α x``; returns ``Σ y·y`` (after the update) if ``norm``, else 0."""
+    def axpy(self, alpha: np.ndarray, x: np.ndarray, y: np.ndarray, norm: bool = False) -> float:
+        """``y_c ← y_c + α_c x_c`` (one coefficient per component); returns ``Σ y·y`` if ``norm``, else 0."""
         N2N3 = self.shape[1] * self.shape[2]
 
         def kernel(i0, i1, scratch):
-            xs, ys = x[:, i0:i1], y[:, i0:i1]
-            tmp = scratch["r"][:, : (i1 - i0) * N2N3].reshape(xs.shape)
-            np.multiply(xs, alpha, out=tmp)
-            ys += tmp
-            return sum(float(np.vdot(ys[c], ys[c])) for c in range(6)) if norm else None
+            tmp = scratch["r"][:, : (i1 - i0) * N2N3]
+            total = 0.0
+            for c in range(6):
+                yc = y[c, i0:i1].reshape(-1)
+                np.multiply(x[c, i0:i1].reshape(-1), alpha[c], out=tmp[c])
+                yc += tmp[c]
+                if norm:
+                    total += float(np.vdot(yc, yc))
+            return total
         return self.run(kernel)
-
-    def xpby(self, x: np.ndarray, beta: float, y: np.ndarray):
-        """``y ← x + β y``."""
-        def kernel(i0, i1, _):
-            ys = y[:, i0:i1]
-            ys *= beta
-            ys += x[:, i0:i1]
-        self.run(kernel)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -460,14 +478,15 @@ def _solve_cg(ws: _Workspace, E: np.ndarray, tol: float, maxiter: int, report: C
     r, p = ws.vectors[0], ws.vectors[1]
     x = ws.vectors[2] if keep else None
     work = ws.real
+    to_mandel = GREEN_TO_MANDEL / ws.size  # work → Mandel G[·] after ifft
     p[...] = E[:, None, None, None]
     ws.constitutive(work, p)  # σ_E = C : E
-    load = np.sqrt(ws.dot(work, work))
+    load = np.sqrt(ws.dot(work, work, _MANDEL**2))
     ws.fft()
-    mean = ws.hat[:, 0, 0, 0].real / ws.size
-    ws.green(1.0, 0.5)
+    mean = ws.mean_stress()
+    ws.green(0.5)
     ws.ifft()
-    np.negative(work, out=r)  # r_0 = −G[C : E]
+    np.multiply(work, -to_mandel[:, None, None, None], out=r)  # r_0 = −G[C : E]
     if x is not None:
         x[...] = 0.0
     rr = ws.dot(r, r)
@@ -477,28 +496,27 @@ def _solve_cg(ws: _Workspace, E: np.ndarray, tol: float, maxiter: int, report: C
         return mean, [0.0], True, ""
     history = [1.0]
     report(0, 1.0)
-    np.copyto(p, r)
+    beta = 0.0  # p still holds E: the first direction is p = r + 0·p = r
     for it in range(1, maxiter + 1):
-        ws.constitutive(work, p)
+        pAp = ws.constitutive(work, p, update=(r, beta))  # p ← r + βp; ⟨p, G[C:p]⟩ = ⟨p, C:p⟩ since p = G[p]
+        if not (np.isfinite(pAp) and pAp > 0.0):
+            return mean, history, False, f"CG breakdown at iteration {it}: <p, C:p> = {pAp:.3g}"
         ws.fft()
-        mean_p = ws.hat[:, 0, 0, 0].real / ws.size
-        ws.green(1.0, 0.5)
-        ws.ifft()  # work = G[C : p]
-        pw = ws.dot(p, work)
-        if not (np.isfinite(pw) and pw > 0.0):
-            return mean, history, False, f"CG breakdown at iteration {it}: <p, G[C:p]> = {pw:.3g}"
-        alpha = rr / pw
+        mean_p = ws.mean_stress()
+        ws.green(0.5)
+        ws.ifft()  # work ∝ G[C : p]
+        alpha = rr / pAp
         mean += alpha * mean_p
         if x is not None:
-            ws.axpy(alpha, p, x)
-        rr_new = ws.axpy(-alpha, work, r, norm=True)
+            ws.axpy(np.full(6, alpha), p, x)
+        rr_new = ws.axpy(-alpha * to_mandel, work, r, norm=True)
         history.append(float(np.sqrt(rr_new) / r0))
         report(it, history[-1])
         if history[-1] <= tol:
             if x is not None:
                 x += E[:, None, None, None]
             return mean, history, True, ""
-        ws.xpby(r, rr_new / rr, p)
+        beta = rr_new / rr
         rr = rr_new
     return mean, history, False, f"CG did not reach tol in maxiter = {maxiter} iterations"
 
@@ -507,16 +525,17 @@ def _solve_basic(ws: _Workspace, E: np.ndarray, tol: float, maxiter: int, report
     eps = ws.vectors[0]
     work = ws.real
     a, c = ref.green_coefficients
+    update = -a / ws.size * GREEN_TO_MANDEL  # ε ← ε − Γ0[σ]
     eps[...] = E[:, None, None, None]
     history: list[float] = []
     r0 = load = 0.0
     for it in range(maxiter + 1):
         ws.constitutive(work, eps)
         if it == 0:
-            load = np.sqrt(ws.dot(work, work))
+            load = np.sqrt(ws.dot(work, work, _MANDEL**2))
         ws.fft()
-        mean = ws.hat[:, 0, 0, 0].real / ws.size
-        g2 = ws.green(a, c, residual=True)  # hat = Γ0[σ̂]; g2 = ‖G[σ]‖²
+        mean = ws.mean_stress()
+        g2 = ws.green(c, residual=True)  # hat ∝ Γ0[σ̂]; g2 = ‖G[σ]‖²
         if it == 0:
             r0 = np.sqrt(max(g2, 0.0))
             if r0 <= _ROUNDOFF * load:
@@ -531,7 +550,7 @@ def _solve_basic(ws: _Workspace, E: np.ndarray, tol: float, maxiter: int, report
         if it == maxiter:
             break
         ws.ifft()
-        ws.axpy(-1.0, work, eps)  # ε ← ε − Γ0[σ]
+        ws.axpy(update, work, eps)
     return mean, history, False, (f"basic scheme did not reach tol in maxiter = {maxiter} iterations "
                                   f"(contraction factor of the reference medium {ref.rate:.6g})")
 
@@ -639,7 +658,7 @@ def homogenize_fft(
                 mean, history, ok, message = _solve_basic(ws, E, tol, maxiter, report, ref)
             iter_s += time.perf_counter() - t0
             iter_fft_s += ws.fft_s - f0
-            mean_stress.append(mean / _MANDEL)
+            mean_stress.append(mean)
             iterations.append(len(history) - 1)
             residuals.append(history)
             if not ok:
@@ -652,7 +671,7 @@ def homogenize_fft(
                 strain = ws.vectors[2] if scheme == "cg" else ws.vectors[0]
                 ws.constitutive(ws.real, strain)
                 fields["strain"].append(strain * _MANDEL[:, None, None, None])
-                fields["stress"].append(ws.real / _MANDEL[:, None, None, None])
+                fields["stress"].append(ws.real.copy())
         work_bytes = ws.nbytes
         plan_s, fft_s, fft_calls = ws.plan_s, ws.fft_s, ws.fft_calls
     finally:
