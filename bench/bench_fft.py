@@ -3,7 +3,7 @@
 1. Foams (meshes.foam.VoronoiFoam, density 0.18, gamma 0.1 and 1, 20 cells) at N = 32, 64, 128 with cg/rotated:
    iterations per load case, wall time, time per iteration, the ratio of the time per iteration to the time of
    the two batched FFTs that iteration performs (goal <= 1.5), the solver's work arrays and the peak RSS.
-   With ``--image x.npy`` (0 = void, 1 = solid) that image is run instead of the foams.
+   With ``--image a.npy [b.npy ...]`` (0 = void, 1 = solid) those images are run instead of the foams.
 2. ``basic`` vs ``cg`` (both ``spectral`` and ``rotated``) on a finite-contrast image: a stiff spherical inclusion
    (contrast ``--contrast``, default 100) at ``--contrast-n`` voxels per side.
 
@@ -73,9 +73,8 @@ def main(out: Path, sizes, threads, image, contrast, contrast_n, tol):
     solid = isotropic_voigt(1.0, 0.3)
     porous = [np.zeros((6, 6)), solid]
     rows = []
-    if image is not None:
-        phases = np.load(image).astype(np.int8)
-        cases = [(f"image {image.name}", phases)]
+    if image:
+        cases = [(f"image {path.name}", np.load(path).astype(np.int8)) for path in image]
     else:
         cases = foam_images(sizes, (0.1, 1.0), cells=20, seed=1, density=0.18)
     for name, phases in cases:
@@ -119,7 +118,7 @@ if __name__ == "__main__":
     p.add_argument("--out", type=Path, default=Path("out/bench"))
     p.add_argument("--sizes", type=int, nargs="+", default=[32, 64, 128], help="foam resolutions N")
     p.add_argument("--threads", type=int, default=None, help="solver threads (default: available CPUs)")
-    p.add_argument("--image", type=Path, default=None, help=".npy 0/1 image to run instead of the foams")
+    p.add_argument("--image", type=Path, nargs="+", default=None, help=".npy 0/1 images to run instead of the foams")
     p.add_argument("--contrast", type=float, default=100.0, help="stiffness contrast of the inclusion case")
     p.add_argument("--contrast-n", type=int, default=32, help="voxels per side of the inclusion case")
     p.add_argument("--tol", type=float, default=1e-6)

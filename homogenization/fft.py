@@ -70,7 +70,7 @@ import numpy as np
 import pyfftw
 
 from homogenization.result import HomogenizationResult
-from homogenization.tensors import check_stiffness, closest_isotropic, voigt_to_mandel
+from homogenization.tensors import check_stiffness, closest_isotropic, mandel_to_voigt, voigt_to_mandel
 
 __all__ = [
     "DISCRETIZATIONS",
@@ -188,7 +188,7 @@ def reference_medium(stiffnesses_mandel: Sequence[np.ndarray]) -> ReferenceMediu
     lo, hi = [], []
     for M in stiffnesses_mandel:
         eig = np.linalg.eigvalsh(M)
-        iso = closest_isotropic(M / np.outer(_MANDEL, _MANDEL))
+        iso = closest_isotropic(mandel_to_voigt(M))
         if iso.error <= 1e-12:
             t3k, t2m = 3.0 * iso.E / (3.0 * (1 - 2 * iso.nu)), iso.E / (1 + iso.nu)
             lo.append((t3k, t2m))

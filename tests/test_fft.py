@@ -74,6 +74,7 @@ def rel(A, B):
 
 
 # --------------------------------------------------------------------------------------------------
+@pytest.mark.mpi
 @pytest.mark.parametrize("C", [C_SOFT, TI], ids=["isotropic", "rotated-TI"])
 @pytest.mark.parametrize("scheme,discretization", [("cg", "rotated"), ("cg", "spectral"), ("basic", "spectral")])
 def test_homogeneous_returns_itself(C, scheme, discretization):
@@ -98,6 +99,7 @@ def test_laminate_matches_closed_form(axis, contrast, scheme, discretization, n)
     assert r.asymmetry < 1e-8
 
 
+@pytest.mark.mpi
 @pytest.mark.parametrize("axis", [0, 2])
 def test_laminate_of_rotated_ti_layers(axis):
     r = homogenize_fft(layered_image(8, axis, 5), [C_SOFT, TI], tol=1e-10)
