@@ -152,7 +152,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"homogenize: error: the homogenized stiffness is not positive definite ({exc}); "
               f"C = {np.array2string(result.C, precision=4)}", file=sys.stderr)
         return 1
-    inputs = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()}
+    unused = ("image",) if args.image is None else ("density", "gamma", "cells", "seed", "resolution")
+    inputs = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items() if k not in unused}
     summary.update(inputs=inputs, solid_fraction=float(phases.mean()), software=_versions())
     ti = summary["ti_fit"]
     print(f"C (Voigt) =\n{np.array2string(result.C, precision=5, suppress_small=True)}")
