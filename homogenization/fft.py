@@ -609,9 +609,11 @@ def homogenize_fft(
     -------
     HomogenizationResult
         ``method="fft"``; ``info`` holds the settings, ``shape``, stopping criterion, reference medium (basic),
-        timings (``plan_s``, ``fft_s``, ``time_per_iteration_s``, ``fft_time_per_iteration_s`` and their
-        ratio), ``work_bytes`` (the solver's ``N³`` arrays, exact) and ``peak_rss_bytes`` (process peak RSS
-        from ``getrusage``, an upper bound that includes everything else the process holds).
+        timings (``plan_s``; ``fft_s`` over all transforms; ``time_per_iteration_s`` and
+        ``fft_time_per_iteration_s``: wall and FFT time of the load-case solves, their set-up included, divided by
+        the total number of iterations; ``iteration_to_fft_ratio``), ``work_bytes`` (the solver's ``N³`` arrays,
+        exact) and ``peak_rss_bytes`` (process peak RSS from ``getrusage``, an upper bound that includes
+        everything else the process holds).
 
     """
     t_start = time.perf_counter()
