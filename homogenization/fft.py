@@ -513,8 +513,6 @@ def _solve_cg(ws: _Workspace, E: np.ndarray, tol: float, maxiter: int, report: C
         history.append(float(np.sqrt(rr_new) / r0))
         report(it, history[-1])
         if history[-1] <= tol:
-            if x is not None:
-                x += E[:, None, None, None]
             return mean, history, True, ""
         beta = rr_new / rr
         rr = rr_new
@@ -670,7 +668,10 @@ def homogenize_fft(
                 logger.warning(message)
                 failures.append(message)
             if fields is not None:
-                strain = ws.vectors[2] if scheme == "cg" else ws.vectors[0]
+                strain = ws.vectors[0]  # basic: ε
+                if scheme == "cg":  # E + the CG iterate ε̃
+                    strain = ws.vectors[2]
+                    strain += E[:, None, None, None]
                 ws.constitutive(ws.real, strain)
                 fields["strain"].append(strain * _MANDEL[:, None, None, None])
                 fields["stress"].append(ws.real.copy())

@@ -185,6 +185,17 @@ def test_basic_at_huge_contrast_reports_instead_of_nan():
     assert not r.converged and np.all(np.isfinite(r.C_raw[:, 0])) and r.info["failures"]
 
 
+@pytest.mark.parametrize("scheme", ["cg", "basic"])
+def test_unconverged_result_is_flagged_and_its_fields_are_consistent(scheme):
+    img = sphere_image(8, 0.3)
+    r = homogenize_fft(img, [C_SOFT, isotropic_voigt(4.0, 0.2)], scheme=scheme, maxiter=2, tol=1e-12,
+                       raise_on_failure=False, return_fields=True, macro_strains=np.eye(6)[:1])
+    assert not r.converged and r.iterations == [2] and r.residuals[0][-1] > 1e-12
+    assert "maxiter = 2" in r.info["failures"][0]
+    assert np.allclose(r.fields["strain"].mean(axis=(2, 3, 4)), np.eye(6)[:1], atol=1e-14)
+    assert np.allclose(r.fields["stress"].mean(axis=(2, 3, 4))[0], r.C_raw[:, 0], rtol=1e-10, atol=1e-14)
+
+
 def test_basic_and_cg_agree_on_finite_contrast():
     img = sphere_image(10, 0.3)
     materials = [C_SOFT, isotropic_voigt(5.0, 0.2)]
