@@ -234,7 +234,8 @@ def test_threads_give_the_same_result():
     img = sphere_image(10, 0.3)
     materials = [np.zeros((6, 6)), C_SOFT, isotropic_voigt(3.0, 0.2)]
     img[:, :, :2] = 2  # three phases, one of them void
-    C = [homogenize_fft(img, materials, tol=1e-10, threads=t).C for t in (1, 2)]
+    C = [homogenize_fft(img, materials, tol=1e-8, threads=t, macro_strains=np.eye(6)[[0, 4]]).C_raw[:, [0, 4]]
+         for t in (1, 2)]
     assert rel(C[1], C[0]) < 1e-9  # only the summation order of the inner products differs
 
 
