@@ -1,0 +1,293 @@
+"""UFL constitutive models: strain measures × the (transversely) isotropic quadratic energy.
+
+Material data are DG0 fields (:class:`MaterialField`): one form serves every cell, heterogeneous regions are
+data. The quadratic energy of a symmetric strain ``e`` is
+
+* isotropic:  ``ψ(e) = λ/2 tr(e)² + μ e:e``;
+* transversely isotropic, with the unit *l* axis ``a`` (DG0 orientation field) and ``A = a⊗a``
+  (Spencer's structural-tensor form, moduli of :meth:`fenicsfoam.materials.TransverseIsotropic.spencer_moduli`):
+  ``ψ(e) = λ/2 tr(e)² + μ_T e:e + α tr(Ae) tr(e) + 2(μ_L - μ_T) tr(A e²) + β/2 tr(Ae)²``,
+  whose derivative is ``σ = λ tr(e) I + 2μ_T e + α (tr(Ae) I + tr(e) A) + 2(μ_L - μ_T)(Ae + eA) + β tr(Ae) A``.
+
+Stresses are ``ufl.diff`` of ψ with respect to the strain made a ``ufl.variable``. The models
+(first Piola–Kirchhoff stress ``P`` of the displacement ``u``, ``F = I + ∇u``):
+
+* ``linear``: ``ε = sym ∇u``, ``P = σ(ε)`` (small strain, not frame invariant);
+* ``svk``: St-Venant–Kirchhoff, ``E = (FᵀF - I)/2``, ``S = ∂ψ/∂E``, ``P = F S``;
+* ``corotational``: ``ε_c = sym(RᵀF) - I`` with ``R`` the rotation of the polar decomposition ``F = R U``,
+  ``P = R σ(ε_c)``. ``R`` is a quadrature field (:class:`PolarRotation`) recomputed from the current ``u``
+  before every residual evaluation, and held fixed in the tangent (as SOFA's corotational elements do).
+  For an isotropic material ``R σ(U - I)`` is exactly ``∂ψ(U - I)/∂F``; for a TI material it differs from
+  it by terms of order ``|ε_c| |σ|`` (σ and U do not commute), the corotational model of the paper.
+  Writing R in UFL by polar iterations so that the tangent is exact was measured and rejected
+  (README, "Macro FEM": 13 min of FFCx/gcc compilation and 8× the assembly time for 3 iterations).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import basix
+import numpy as np
+import ufl
+from dolfinx import fem
+from dolfinx.mesh import Mesh, MeshTagsMetaClass
+
+from fenicsfoam.materials import Isotropic, Material, TransverseIsotropic
+from fenicsfoam.orientation import UNTAGGED, cell_function, owned_cell_tags
+
+__all__ = [
+    "MODELS",
+    "MaterialField",
+    "PolarRotation",
+    "deformation_gradient",
+    "first_piola_kirchhoff",
+    "green_lagrange",
+    "polar_rotation",
+    "quadratic_energy",
+    "small_strain",
+    "strain_energy_density",
+    "stress",
+]
+
+logger = logging.getLogger(__name__)
+
+#: Names of the constitutive models.
+MODELS = ("linear", "svk", "corotational")
+
+_ISOTROPIC_MODULI = ("lmbda", "mu")
+_TI_MODULI = ("lmbda", "mu_T", "mu_L", "alpha", "beta")
+
+
+# --------------------------------------------------------------------------------------------------
+# Material data as DG0 fields
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class MaterialField:
+    """Piecewise-constant material data: DG0 moduli and density, one value per cell.
+
+    If every region is :class:`~fenicsfoam.materials.Isotropic`, ``moduli`` holds the Lamé fields
+    ``lmbda``, ``mu`` and the isotropic energy is used (no orientation field is needed); otherwise it holds
+    the five Spencer moduli ``lmbda, mu_T, mu_L, alpha, beta`` (isotropic regions get ``μ_T = μ_L = μ``,
+    ``α = β = 0``, for which the orientation has no effect) and an orientation field is required.
+
+    Build with :meth:`uniform` or :meth:`from_regions`.
+    """
+
+    materials: Mapping[int, Material]      #: the regions, ``{cell tag: material}``
+    isotropic: bool                        #: every region is isotropic
+    moduli: Mapping[str, fem.Function]     #: DG0 moduli (Pa) by name
+    rho: fem.Function                      #: DG0 mass density (kg/m³)
+
+    @classmethod
+    def uniform(cls, mesh: Mesh, material: Material) -> MaterialField:
+        """The same material in every cell."""
+        return cls._build(mesh, {0: material}, np.zeros(_num_owned_cells(mesh), dtype=np.int64))
+
+    @classmethod
+    def from_regions(cls, mesh: Mesh, cell_tags: MeshTagsMetaClass, materials: Mapping[int, Material]
+                     ) -> MaterialField:
+        """One material per cell tag; every cell must carry a tag present in ``materials``."""
+        for tag, material in materials.items():
+            if not isinstance(material, (Isotropic, TransverseIsotropic)):
+                raise TypeError(f"region {tag}: expected Isotropic or TransverseIsotropic, got {material!r}")
+        tags = owned_cell_tags(mesh, cell_tags)
+        unknown = ~np.isin(tags, list(materials))
+        n_unknown = mesh.comm.allreduce(int(unknown.sum()))
+        if n_unknown:
+            local = {("untagged" if t == UNTAGGED else int(t)) for t in np.unique(tags[unknown])}
+            missing = sorted(set().union(*mesh.comm.allgather(local)), key=str)
+            raise ValueError(f"{n_unknown} cell(s) have tags {missing} without a material "
+                             f"(materials given for tags {sorted(materials)})")
+        return cls._build(mesh, dict(materials), tags)
+
+    @classmethod
+    def _build(cls, mesh: Mesh, materials: dict[int, Material], tags: np.ndarray) -> MaterialField:
+        isotropic = all(isinstance(m, Isotropic) for m in materials.values())
+        names = _ISOTROPIC_MODULI if isotropic else _TI_MODULI
+        table = {tag: (dict(zip(_ISOTROPIC_MODULI, m.lame)) if isotropic else m.spencer_moduli())
+                 for tag, m in materials.items()}
+        values = np.zeros((len(names), tags.size))
+        rho = np.zeros(tags.size)
+        for tag, moduli in table.items():
+            cells = tags == tag
+            values[:, cells] = np.array([moduli[name] for name in names])[:, None]
+            rho[cells] = materials[tag].rho
+        moduli = {name: cell_function(mesh, v, name=name) for name, v in zip(names, values)}
+        return cls(materials=materials, isotropic=isotropic, moduli=moduli, rho=cell_function(mesh, rho, name="rho"))
+
+
+def _num_owned_cells(mesh: Mesh) -> int:
+    return mesh.topology.index_map(mesh.topology.dim).size_local
+
+
+# --------------------------------------------------------------------------------------------------
+# Kinematics and the quadratic energy
+# --------------------------------------------------------------------------------------------------
+def deformation_gradient(u: fem.Function) -> ufl.core.expr.Expr:
+    """``F = I + ∇u`` (gradient with respect to the reference coordinates)."""
+    return ufl.Identity(len(u)) + ufl.grad(u)
+
+
+def green_lagrange(F: ufl.core.expr.Expr) -> ufl.core.expr.Expr:
+    """Green–Lagrange strain ``E = (FᵀF - I)/2``."""
+    return 0.5 * (F.T * F - ufl.Identity(F.ufl_shape[0]))
+
+
+def small_strain(u: fem.Function) -> ufl.core.expr.Expr:
+    """Small strain ``ε = sym ∇u``."""
+    return ufl.sym(ufl.grad(u))
+
+
+def quadratic_energy(e: ufl.core.expr.Expr, material: MaterialField, orientation: fem.Function | None
+                     ) -> ufl.core.expr.Expr:
+    """``ψ(e) = ½ e:C:e`` for a symmetric strain ``e`` (isotropic or TI Spencer form, module docstring)."""
+    m = material.moduli
+    if material.isotropic:
+        return 0.5 * m["lmbda"] * ufl.tr(e) ** 2 + m["mu"] * ufl.inner(e, e)
+    if orientation is None:
+        raise ValueError("a transversely isotropic material needs an orientation field (the unit l axis per cell)")
+    A = ufl.outer(orientation, orientation)
+    tr_Ae = ufl.inner(A, e)
+    return (0.5 * m["lmbda"] * ufl.tr(e) ** 2 + m["mu_T"] * ufl.inner(e, e) + m["alpha"] * tr_Ae * ufl.tr(e)
+            + 2.0 * (m["mu_L"] - m["mu_T"]) * ufl.inner(A, e * e) + 0.5 * m["beta"] * tr_Ae ** 2)
+
+
+def stress(e: ufl.core.expr.Expr, material: MaterialField, orientation: fem.Function | None) -> ufl.core.expr.Expr:
+    """``σ = ∂ψ/∂e`` of :func:`quadratic_energy`, by ``ufl.diff`` with ``e`` made a ``ufl.variable``."""
+    e = ufl.variable(e)
+    return ufl.diff(quadratic_energy(e, material, orientation), e)
+
+
+# --------------------------------------------------------------------------------------------------
+# The rotation of the polar decomposition, at quadrature points
+# --------------------------------------------------------------------------------------------------
+def _cofactor(M: np.ndarray) -> np.ndarray:
+    """Cofactor matrices ``cof(M) = det(M) M⁻ᵀ`` of a stack (n, 3, 3): columns are cross products of columns."""
+    c0, c1, c2 = M[:, :, 0], M[:, :, 1], M[:, :, 2]
+    return np.stack([np.cross(c1, c2), np.cross(c2, c0), np.cross(c0, c1)], axis=2)
+
+
+def polar_rotation(F: np.ndarray, tol: float = 1e-14, max_iterations: int = 30) -> np.ndarray:
+    """Orthogonal factor ``R`` of the polar decomposition ``F = R U`` for a stack of matrices (n, 3, 3).
+
+    Scaled Newton iteration (Higham 1986), ``R₀ = F``,
+
+        R_{k+1} = ½ (ζ_k R_k + ζ_k⁻¹ R_k⁻ᵀ),   ζ_k = |det R_k|^(-1/3),   R_k⁻ᵀ = cof(R_k) / det R_k,
+
+    until ``max |R_{k+1} - R_k| <= tol`` (4–5 iterations for principal stretches in [0.5, 2]). ``R`` is a
+    rotation when ``det F > 0`` (a reflection when ``det F < 0``; NaN when ``det F = 0``).
+    """
+    R = np.array(F, dtype=float)
+    for _ in range(max_iterations):
+        cof = _cofactor(R)
+        det = np.einsum("nij,nij->n", R, cof) / 3.0
+        zeta = np.abs(det) ** (-1.0 / 3.0)
+        R_next = 0.5 * (zeta[:, None, None] * R + (1.0 / (zeta * det))[:, None, None] * cof)
+        change = np.max(np.abs(R_next - R), initial=0.0)
+        R = R_next
+        if not change > tol:  # also stops on NaN
+            break
+    return R
+
+
+class PolarRotation:
+    """The rotation ``R`` of ``F = R U`` at the quadrature points of the stress integral, as a UFL coefficient.
+
+    ``R`` lives in a tensor quadrature space of degree ``quadrature_degree`` (one point per cell for P1,
+    where ``F`` is constant per cell); :meth:`update` evaluates ``F = I + ∇u`` at the quadrature points of
+    every local cell (owned and ghost, so no communication) and writes :func:`polar_rotation` of it.
+    The stress integral must use the same quadrature degree (``dx(metadata={"quadrature_degree": q})``).
+    """
+
+    def __init__(self, u: fem.Function, quadrature_degree: int):
+        mesh = u.function_space.mesh
+        element = ufl.TensorElement("Quadrature", mesh.ufl_cell(), degree=quadrature_degree, quad_scheme="default")
+        Q = fem.FunctionSpace(mesh, element)
+        points, _ = basix.make_quadrature(basix.cell.string_to_type(mesh.topology.cell_name()), quadrature_degree)
+        self.R = fem.Function(Q, name="rotation")
+        self._F = fem.Expression(deformation_gradient(u), points)
+        imap = mesh.topology.index_map(mesh.topology.dim)
+        self._cells = np.arange(imap.size_local + imap.num_ghosts, dtype=np.int32)
+        self._dofs = Q.dofmap.list.array  # block index per (cell, point), in the order of Expression.eval
+        self.R.x.array.reshape(-1, 9)[:] = np.eye(3).ravel()
+
+    def update(self) -> None:
+        """Recompute ``R`` from the current displacement (its ghost values must be up to date)."""
+        F = self._F.eval(self._cells).reshape(-1, 3, 3)
+        self.R.x.array.reshape(-1, 9)[self._dofs] = polar_rotation(F).reshape(-1, 9)
+
+
+# --------------------------------------------------------------------------------------------------
+# Models
+# --------------------------------------------------------------------------------------------------
+def _check_model(model: str) -> None:
+    if model not in MODELS:
+        raise ValueError(f"unknown model {model!r}; valid models are {', '.join(MODELS)}")
+
+
+def _strain(model: str, u: fem.Function, rotation: PolarRotation | None) -> ufl.core.expr.Expr:
+    """The model's strain: ``ε`` (linear), ``E`` (svk) or ``ε_c = sym(RᵀF) - I`` (corotational)."""
+    _check_model(model)
+    if model == "linear":
+        return small_strain(u)
+    F = deformation_gradient(u)
+    if model == "svk":
+        return green_lagrange(F)
+    if rotation is None:
+        raise ValueError("the corotational model needs a PolarRotation of the displacement")
+    return ufl.sym(rotation.R.T * F) - ufl.Identity(len(u))
+
+
+def strain_energy_density(model: str, u: fem.Function, material: MaterialField, orientation: fem.Function | None,
+                          rotation: PolarRotation | None = None) -> ufl.core.expr.Expr:
+    """Energy per unit reference volume ``ψ = ½ e:C:e`` of the model's strain ``e`` (``ε``, ``E`` or ``ε_c``)."""
+    return quadratic_energy(_strain(model, u, rotation), material, orientation)
+
+
+def _cross_matrix(w: ufl.core.expr.Expr) -> ufl.core.expr.Expr:
+    """``[w]×``, the skew matrix with ``[w]× v = w × v``."""
+    return ufl.as_matrix([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
+
+
+def _axial(M: ufl.core.expr.Expr) -> ufl.core.expr.Expr:
+    """Axial vector of the skew part of ``M``: ``[axial(M)]× = (M - Mᵀ)/2``."""
+    return 0.5 * ufl.as_vector([M[2, 1] - M[1, 2], M[0, 2] - M[2, 0], M[1, 0] - M[0, 1]])
+
+
+def corotational_rotation_tangent(u: fem.Function, du: ufl.Argument, material: MaterialField,
+                                  orientation: fem.Function | None, rotation: PolarRotation) -> ufl.core.expr.Expr:
+    """The part of the corotational tangent ``dP`` that comes from the change of ``R`` with ``F``.
+
+    With ``F = R U``, a change ``dF = ∇du`` rotates ``R`` by ``dR = R Ω``, ``Ω = [ω]×`` skew, where
+    ``ω = 2 (tr(U) I - U)⁻¹ axial(Rᵀ dF)`` (from the skew part of ``Rᵀ dF = Ω U + dU``, using
+    ``Ω U + U Ω = [(tr(U) I - U) ω]×``; ``tr(U) I - U`` has eigenvalues ``λ_i + λ_j > 0``). Then
+
+        dP = R σ(sym(Rᵀ dF))  +  R (Ω σ - σ(sym(Ω U))),
+
+    the first term being ``ufl.derivative`` of ``P = R σ(ε_c)`` at frozen ``R`` and the second the
+    expression returned here, so that the Jacobian is exact (Newton converges quadratically).
+    """
+    R, F = rotation.R, deformation_gradient(u)
+    U = ufl.sym(R.T * F)
+    omega = 2.0 * ufl.inv(ufl.tr(U) * ufl.Identity(3) - U) * _axial(R.T * ufl.grad(du))
+    Omega = _cross_matrix(omega)
+    sigma = stress(U - ufl.Identity(3), material, orientation)
+    return R * (Omega * sigma - stress(ufl.sym(Omega * U), material, orientation))
+
+
+def first_piola_kirchhoff(model: str, u: fem.Function, material: MaterialField, orientation: fem.Function | None,
+                          rotation: PolarRotation | None = None) -> ufl.core.expr.Expr:
+    """First Piola–Kirchhoff stress of the model: ``σ(ε)``, ``F S(E)`` or ``R σ(ε_c)`` (module docstring).
+
+    ``rotation`` (a :class:`PolarRotation` of ``u``) is required by, and only used by, ``corotational``.
+    """
+    e = _strain(model, u, rotation)
+    sigma = stress(e, material, orientation)
+    if model == "linear":
+        return sigma
+    if model == "svk":
+        return deformation_gradient(u) * sigma
+    return rotation.R * sigma

@@ -1,0 +1,162 @@
+"""Cell-wise (DG0) fields on a dolfinx mesh, and the orientation field of the material *l* axis.
+
+The orientation field is a DG0 vector function whose value in each cell is the unit *l* axis (local axis 3
+of :class:`fenicsfoam.materials.TransverseIsotropic`) in global coordinates, in the reference configuration.
+Three constructors cover the scene files: :func:`uniform`, :func:`per_tag` and :func:`from_callable`
+(e.g. a spiral, evaluated at cell midpoints). Each normalises the directions and refuses zero or non-finite
+vectors.
+
+Values are computed on the cells this rank owns and copied to ghost cells by ``scatter_forward``, so the
+field is the same whatever the partition. :func:`cell_function` and :func:`owned_cell_tags` are the
+building blocks shared with :class:`fenicsfoam.constitutive.MaterialField`.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Mapping, Sequence
+
+import numpy as np
+from dolfinx import fem
+from dolfinx.mesh import Mesh, MeshTagsMetaClass, compute_midpoints
+
+__all__ = ["OrientationError", "cell_function", "from_callable", "owned_cell_tags", "per_tag", "uniform"]
+
+logger = logging.getLogger(__name__)
+
+#: Tag reported by :func:`owned_cell_tags` for a cell that ``cell_tags`` does not mark.
+UNTAGGED = np.iinfo(np.int32).min
+
+
+class OrientationError(ValueError):
+    """An orientation field cannot be built: zero or non-finite directions, or cells without a direction."""
+
+
+def _num_owned_cells(mesh: Mesh) -> int:
+    return mesh.topology.index_map(mesh.topology.dim).size_local
+
+
+def cell_function(mesh: Mesh, values: np.ndarray, name: str | None = None) -> fem.Function:
+    """A DG0 function with the given values on the cells this rank owns; ghost cells by ``scatter_forward``.
+
+    Parameters
+    ----------
+    mesh
+        The mesh.
+    values
+        Shape ``(n_owned,)`` for a scalar field or ``(n_owned, k)`` for a k-vector field, row *i* being the
+        value in owned cell *i* (local index).
+    name
+        Name of the function (shown in output files).
+
+    """
+    values = np.asarray(values, dtype=float)
+    n = _num_owned_cells(mesh)
+    if values.shape[0] != n or values.ndim not in (1, 2):
+        raise ValueError(f"expected values of shape ({n},) or ({n}, k) for the {n} owned cells, got {values.shape}")
+    if values.ndim == 1:
+        V = fem.FunctionSpace(mesh, ("DG", 0))
+    else:
+        V = fem.VectorFunctionSpace(mesh, ("DG", 0), dim=values.shape[1])
+    f = fem.Function(V, name=name)
+    bs = V.dofmap.index_map_bs
+    dofs = V.dofmap.list.array.reshape(-1, V.dofmap.dof_layout.num_dofs)[:n, 0]
+    f.x.array.reshape(-1, bs)[dofs] = values.reshape(n, bs)
+    f.x.scatter_forward()
+    return f
+
+
+def owned_cell_tags(mesh: Mesh, cell_tags: MeshTagsMetaClass) -> np.ndarray:
+    """The tag of every cell this rank owns, :data:`UNTAGGED` where ``cell_tags`` has none."""
+    tdim = mesh.topology.dim
+    if cell_tags.dim != tdim:
+        raise ValueError(f"cell_tags must tag cells (dimension {tdim}), got entities of dimension {cell_tags.dim}")
+    n = _num_owned_cells(mesh)
+    tags = np.full(n, UNTAGGED, dtype=np.int64)
+    owned = cell_tags.indices < n
+    tags[cell_tags.indices[owned]] = cell_tags.values[owned]
+    return tags
+
+
+def _normalised(comm, directions: np.ndarray, what: str) -> np.ndarray:
+    """Rows of ``directions`` divided by their norms; :class:`OrientationError` on zero or non-finite rows.
+
+    The check is collective: every rank raises, with the number of bad cells over all ranks.
+    """
+    norms = np.linalg.norm(directions, axis=1)
+    bad = ~np.isfinite(norms) | (norms == 0.0)
+    n_bad = comm.allreduce(int(bad.sum()))
+    if n_bad:
+        examples = [row for rows in comm.allgather(directions[bad][:1].tolist()) for row in rows]
+        raise OrientationError(f"{what}: {n_bad} cell(s) have a zero or non-finite direction (e.g. {examples[0]}); "
+                               "directions must be finite and non-zero")
+    return directions / norms[:, None]
+
+
+def _as_direction(d: Sequence[float], what: str) -> np.ndarray:
+    d = np.asarray(d, dtype=float)
+    if d.shape != (3,):
+        raise OrientationError(f"{what}: a direction is a 3-vector, got {d.tolist()}")
+    return d
+
+
+def uniform(mesh: Mesh, direction: Sequence[float]) -> fem.Function:
+    """The same unit *l* axis ``direction / |direction|`` in every cell."""
+    d = _as_direction(direction, "uniform")
+    norm = np.linalg.norm(d)
+    if not (np.isfinite(norm) and norm > 0.0):
+        raise OrientationError(f"uniform: the direction must be finite and non-zero, got {d.tolist()}")
+    return cell_function(mesh, np.tile(d / norm, (_num_owned_cells(mesh), 1)), name="orientation")
+
+
+def per_tag(mesh: Mesh, cell_tags: MeshTagsMetaClass, directions: Mapping[int, Sequence[float]],
+            default: Sequence[float] | None = None) -> fem.Function:
+    """The *l* axis per cell tag: ``directions[tag]`` normalised, in every cell with that tag.
+
+    Parameters
+    ----------
+    mesh, cell_tags
+        The mesh and its cell tags (e.g. from ``dolfinx.io.gmshio.model_to_mesh``).
+    directions
+        ``{tag: direction}``; each direction a finite non-zero 3-vector.
+    default
+        Direction for cells whose tag is not in ``directions`` (e.g. isotropic regions, where the axis has no
+        effect). Without it, such cells are an error.
+
+    """
+    tags = owned_cell_tags(mesh, cell_tags)
+    table = {int(t): _as_direction(d, f"per_tag, tag {t}") for t, d in directions.items()}
+    values = np.empty((tags.size, 3))
+    known = np.isin(tags, list(table))
+    for t, d in table.items():
+        values[tags == t] = d
+    n_unknown = mesh.comm.allreduce(int((~known).sum()))
+    if n_unknown:
+        if default is None:
+            local = {("untagged" if t == UNTAGGED else int(t)) for t in np.unique(tags[~known])}
+            missing = sorted(set().union(*mesh.comm.allgather(local)), key=str)
+            raise OrientationError(f"per_tag: {n_unknown} cell(s) have tags {missing} without a direction "
+                                   f"(directions given for tags {sorted(table)}); add them or pass default=")
+        values[~known] = _as_direction(default, "per_tag, default")
+    return cell_function(mesh, _normalised(mesh.comm, values, "per_tag"), name="orientation")
+
+
+def from_callable(mesh: Mesh, f: Callable[[np.ndarray], np.ndarray]) -> fem.Function:
+    """The *l* axis from a function of position, evaluated at cell midpoints and normalised.
+
+    Parameters
+    ----------
+    mesh
+        The mesh.
+    f
+        Maps the midpoints of the owned cells, shape ``(n, 3)``, to directions, shape ``(n, 3)``; e.g. a
+        spiral ``d(x) = (cos(φ) cos(θ(x)), cos(φ) sin(θ(x)), sin(φ))``.
+
+    """
+    tdim = mesh.topology.dim
+    midpoints = compute_midpoints(mesh, tdim, np.arange(_num_owned_cells(mesh), dtype=np.int32))
+    directions = np.asarray(f(midpoints), dtype=float)
+    if directions.shape != midpoints.shape:
+        raise OrientationError(f"from_callable: f must map points of shape {midpoints.shape} to directions of "
+                               f"the same shape, got {directions.shape}")
+    return cell_function(mesh, _normalised(mesh.comm, directions, "from_callable"), name="orientation")

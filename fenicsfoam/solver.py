@@ -1,0 +1,481 @@
+"""Quasi-static elasticity solved by PETSc SNES Newton, with load stepping and automatic cut-back.
+
+The problem: find the displacement ``u`` with prescribed rigid motions on tagged regions such that
+
+    ∫ P(u) : ∇v dX - ∫ ρ s g · v dX = 0   for all admissible v,
+
+``P`` the first Piola–Kirchhoff stress of the model (:mod:`fenicsfoam.constitutive`), ``ρ`` the reference
+density, ``g`` the gravity vector and ``s`` its load factor. Loads (the gravity factor, the angle and
+translation of every :class:`~fenicsfoam.bcs.RigidMotion`) change from one :class:`LoadStep` to the next
+linearly in equal increments; a failed increment (SNES not converged, or an inverted element) is halved,
+up to ``max_cutbacks`` times, and then :class:`ConvergenceError` is raised with the last converged state
+kept in ``u``.
+
+Residual and Jacobian are assembled from the UFL forms with ``dolfinx.fem.petsc``; Dirichlet conditions
+enter the Newton correction by lifting (rows of constrained dofs read ``k (x - g)`` with the Jacobian
+diagonal ``k``, the mean diagonal stiffness, so that residual norms are forces). All PETSc options live
+under the problem's own prefix: :meth:`ElasticityProblem.default_options`, overridden by ``options=``,
+overridden in turn by options already in the PETSc database (the command line).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import basix
+import numpy as np
+import ufl
+from dolfinx import fem, la
+from dolfinx.fem.petsc import (
+    apply_lifting,
+    assemble_matrix,
+    assemble_vector,
+    create_matrix,
+    create_vector,
+    set_bc,
+)
+from dolfinx.mesh import Mesh
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from fenicsfoam.bcs import MotionBC, RigidMotion
+from fenicsfoam.constitutive import (
+    MODELS,
+    MaterialField,
+    PolarRotation,
+    corotational_rotation_tangent,
+    deformation_gradient,
+    first_piola_kirchhoff,
+)
+
+__all__ = ["ConvergenceError", "ElasticityProblem", "LoadState", "LoadStep", "StepStats", "rigid_body_modes"]
+
+logger = logging.getLogger(__name__)
+
+_SNES_REASONS = {getattr(PETSc.SNES.ConvergedReason, name): name for name in dir(PETSc.SNES.ConvergedReason)
+                 if name.isupper() and name != "ITERATING"}
+
+
+class ConvergenceError(RuntimeError):
+    """A load step failed after the maximum number of cut-backs; ``u`` keeps the last converged state.
+
+    Attributes
+    ----------
+    step
+        Label of the failed :class:`LoadStep`.
+    load_factor
+        Fraction of the step reached by the last converged increment, in [0, 1).
+    reason
+        Why the last attempt failed: the SNES converged reason (e.g. ``DIVERGED_LINE_SEARCH``) or
+        ``inverted element (min det F = ...)``.
+
+    """
+
+    def __init__(self, step: str, load_factor: float, reason: str, cutbacks: int):
+        self.step, self.load_factor, self.reason, self.cutbacks = step, load_factor, reason, cutbacks
+        super().__init__(f"load step {step!r} failed at load factor {load_factor:.6g} of the step after "
+                         f"{cutbacks} cut-backs: {reason}; the last converged state is kept")
+
+
+@dataclass(frozen=True)
+class LoadStep:
+    """A labelled target load state, reached from the previous one in ``increments`` equal increments.
+
+    Parameters
+    ----------
+    label
+        Name of the step in statistics and errors (e.g. ``"rest"``, ``"middle"``).
+    gravity
+        Factor of the full gravity vector at the end of the step; ``None`` keeps the current factor.
+    angles
+        ``{motion name: angle}`` in radians at the end of the step; motions not listed keep theirs.
+    translations
+        ``{motion name: (tx, ty, tz)}`` in metres at the end of the step; motions not listed keep theirs.
+    increments
+        Initial number of equal increments (halved automatically on failure).
+
+    """
+
+    label: str
+    gravity: float | None = None
+    angles: Mapping[str, float] = field(default_factory=dict)
+    translations: Mapping[str, Sequence[float]] = field(default_factory=dict)
+    increments: int = 1
+
+    def __post_init__(self):
+        if not (isinstance(self.increments, int) and self.increments >= 1):
+            raise ValueError(f"step {self.label!r}: increments must be an integer >= 1, got {self.increments!r}")
+
+
+@dataclass
+class StepStats:
+    """What one load step cost and reached."""
+
+    label: str
+    newton_iterations: int = 0           #: summed over the converged increments
+    increments: int = 0                  #: converged increments
+    cutbacks: int = 0                    #: failed increments (each halved the increment)
+    residuals: list[list[float]] = field(default_factory=list)  #: SNES residual norms, per converged increment
+    reasons: list[str] = field(default_factory=list)            #: SNES converged reason, per converged increment
+    min_det_F: float = float("nan")      #: smallest det F at quadrature points and vertices at the end
+    wall_s: float = 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict."""
+        return {"label": self.label, "newton_iterations": self.newton_iterations, "increments": self.increments,
+                "cutbacks": self.cutbacks, "residuals": self.residuals, "reasons": self.reasons,
+                "min_det_F": self.min_det_F, "wall_s": self.wall_s}
+
+
+@dataclass(frozen=True)
+class LoadState:
+    """Current load parameters: gravity factor, and angle (rad) and translation (m) per motion name."""
+
+    gravity: float
+    angles: Mapping[str, float]
+    translations: Mapping[str, np.ndarray]
+
+    def target(self, step: LoadStep) -> LoadState:
+        """The state at the end of ``step``: its values where it gives them, the current ones elsewhere."""
+        for name in (*step.angles, *step.translations):
+            if name not in self.angles:
+                raise ValueError(f"step {step.label!r} moves {name!r}, which is not a motion of the problem "
+                                 f"(motions: {sorted(self.angles)})")
+        return LoadState(gravity=self.gravity if step.gravity is None else float(step.gravity),
+                      angles={**self.angles, **{k: float(v) for k, v in step.angles.items()}},
+                      translations={**self.translations,
+                                    **{k: np.asarray(v, dtype=float).reshape(3) for k, v in step.translations.items()}})
+
+    def towards(self, other: LoadState, s: float) -> LoadState:
+        """``(1 - s) self + s other``."""
+        return LoadState(gravity=(1 - s) * self.gravity + s * other.gravity,
+                      angles={k: (1 - s) * a + s * other.angles[k] for k, a in self.angles.items()},
+                      translations={k: (1 - s) * t + s * other.translations[k] for k, t in self.translations.items()})
+
+    def __eq__(self, other) -> bool:
+        return (self.gravity == other.gravity and self.angles == other.angles
+                and all(np.array_equal(t, other.translations[k]) for k, t in self.translations.items()))
+
+
+def rigid_body_modes(V: fem.FunctionSpace) -> PETSc.NullSpace:
+    """The six rigid-body modes (3 translations, 3 rotations) of a 3D vector space, orthonormalised.
+
+    Attached to the Jacobian as its near-nullspace, for algebraic multigrid (``-pc_type gamg``).
+    """
+    index_map, bs = V.dofmap.index_map, V.dofmap.index_map_bs
+    x = V.tabulate_dof_coordinates()[:index_map.size_local]
+    modes = [la.create_petsc_vector(index_map, bs) for _ in range(6)]
+    with contextlib.ExitStack() as stack:
+        b = [stack.enter_context(m.localForm()).array.reshape(-1, bs) for m in modes]
+        for i in range(3):
+            b[i][:index_map.size_local, i] = 1.0
+        for k, (i, j) in enumerate(((0, 1), (1, 2), (2, 0))):  # rotation in the (i, j) plane
+            b[3 + k][:index_map.size_local, i] = -x[:, j]
+            b[3 + k][:index_map.size_local, j] = x[:, i]
+    la.orthonormalize(modes)
+    return PETSc.NullSpace().create(vectors=modes, comm=V.mesh.comm)
+
+
+class ElasticityProblem:
+    """Quasi-static (hyper)elasticity with gravity and prescribed rigid motions, solved by SNES Newton.
+
+    Parameters
+    ----------
+    mesh
+        The mesh (reference configuration, SI units).
+    material
+        Piecewise-constant material data (:class:`~fenicsfoam.constitutive.MaterialField`).
+    orientation
+        DG0 unit *l* axis per cell (:mod:`fenicsfoam.orientation`); required if some region is transversely
+        isotropic, refused if all are isotropic (the isotropic form is used and no orientation is needed).
+    model
+        ``"linear"``, ``"svk"`` or ``"corotational"``.
+    degree
+        Lagrange degree of the displacement, 1 or 2.
+    gravity
+        Full gravity vector (m/s²); its factor starts at 0 and is set by :class:`LoadStep`.
+    motions
+        Prescribed rigid motions (clamps, servo horns), with distinct names; all start at rest.
+    prefix
+        PETSc options prefix of this problem's SNES (and its KSP, PC); must be non-empty and end with ``_``.
+    options
+        Overrides of :meth:`default_options` (keys without the prefix, e.g. ``{"snes_linesearch_type": "l2"}``).
+    quadrature_degree
+        Degree of the quadrature of the stress integral; default ``2 (degree - 1)`` (exact for the linear
+        model; the corotational rotation field lives on these points).
+    max_cutbacks
+        How many times an increment may be halved below the step's initial increment before
+        :class:`ConvergenceError`.
+
+    """
+
+    #: Residual norms below this fraction of ``k ‖x‖`` count as converged (see ``_convergence_test``).
+    _ROUNDOFF_FLOOR = 1e-13
+
+    def __init__(self, mesh: Mesh, material: MaterialField, *, orientation: fem.Function | None = None,
+                 model: str = "corotational", degree: int = 1, gravity: Sequence[float] = (0.0, 0.0, -9.81),
+                 motions: Sequence[RigidMotion] = (), prefix: str = "elasticity_",
+                 options: Mapping[str, Any] | None = None, quadrature_degree: int | None = None,
+                 max_cutbacks: int = 6):
+        if model not in MODELS:
+            raise ValueError(f"unknown model {model!r}; valid models are {', '.join(MODELS)}")
+        if degree not in (1, 2):
+            raise ValueError(f"degree must be 1 or 2, got {degree!r}")
+        if material.isotropic and orientation is not None:
+            raise ValueError("every region is isotropic: pass orientation=None (no orientation field is needed)")
+        if not material.isotropic and orientation is None:
+            raise ValueError("some region is transversely isotropic: an orientation field is required")
+        names = [m.name for m in motions]
+        if len(set(names)) != len(names):
+            raise ValueError(f"motion names must be distinct, got {names}")
+        if not prefix or not prefix.endswith("_"):
+            raise ValueError(f"the options prefix must be non-empty and end with '_', got {prefix!r}")
+        self.model, self.degree, self.max_cutbacks = model, degree, max_cutbacks
+        self.quadrature_degree = 2 * (degree - 1) if quadrature_degree is None else quadrature_degree
+        self.V = fem.VectorFunctionSpace(mesh, ("CG", degree))
+        self.u = fem.Function(self.V, name="displacement")
+        self.rotation = PolarRotation(self.u, self.quadrature_degree) if model == "corotational" else None
+
+        # Forms: one residual and its Jacobian; heterogeneity and loads are coefficient data.
+        self._gravity = np.asarray(gravity, dtype=float).reshape(3)
+        self._body_acceleration = fem.Constant(mesh, np.zeros(3))
+        v, du = ufl.TestFunction(self.V), ufl.TrialFunction(self.V)
+        #: first Piola–Kirchhoff stress of the model (UFL), e.g. for output
+        self.stress = P = first_piola_kirchhoff(model, self.u, material, orientation, self.rotation)
+        dx_stress = ufl.dx(metadata={"quadrature_degree": self.quadrature_degree})
+        residual = (ufl.inner(P, ufl.grad(v)) * dx_stress
+                    - material.rho * ufl.inner(self._body_acceleration, v) * ufl.dx)
+        self._residual = fem.form(residual)
+        jacobian = ufl.derivative(residual, self.u, du)
+        if model == "corotational":  # exact tangent: add the change of R with u
+            dP = corotational_rotation_tangent(self.u, du, material, orientation, self.rotation)
+            jacobian += ufl.inner(dP, ufl.grad(v)) * dx_stress
+        self._jacobian = fem.form(jacobian)
+        self._det_F = fem.Expression(ufl.det(deformation_gradient(self.u)), self._inversion_points(mesh))
+
+        self.motions = {m.name: MotionBC(self.V, m) for m in motions}
+        self._bcs = [m.bc for m in self.motions.values()]
+        #: the current load state (gravity factor, motion angles and translations); all zero at the start
+        self.loads = LoadState(gravity=0.0, angles=dict.fromkeys(names, 0.0),
+                               translations={n: np.zeros(3) for n in names})
+
+        self._b = create_vector(self._residual)
+        self._x = self.u.vector.duplicate()  # SNES iterate: never u's own storage, which trial points overwrite
+        self._A = create_matrix(self._jacobian)
+        self._A.setNearNullSpace(rigid_body_modes(self.V))
+        self._bc_scale = self._mean_diagonal_stiffness()
+        self._snes = self._create_snes(prefix, {**self.default_options(), **(options or {})})
+        #: accumulated wall time (s) of residual and Jacobian evaluations (assembly + rotation updates)
+        self.timings = {"residual": 0.0, "jacobian": 0.0}
+
+    # ----------------------------------------------------------------------------------------------
+    @staticmethod
+    def default_options() -> dict[str, Any]:
+        """Default PETSc options (without prefix): Newton with backtracking line search, MUMPS LU.
+
+        ``snes_rtol`` is relative to the residual at the start of each increment; ``snes_stol`` stops
+        when the Newton correction is below 1e-12 of the solution (round-off). For large problems
+        (beyond ~50k dofs) ``{"ksp_type": "cg", "pc_type": "gamg", "ksp_rtol": 1e-10}`` is faster; the
+        rigid-body near-nullspace is always attached to the Jacobian.
+        """
+        return {
+            "snes_type": "newtonls",
+            "snes_linesearch_type": "basic",
+            "snes_rtol": 1e-10,
+            "snes_stol": 1e-12,
+            "snes_max_it": 25,
+            "ksp_type": "preonly",
+            "pc_type": "lu",
+            "pc_factor_mat_solver_type": "mumps",
+        }
+
+    def _create_snes(self, prefix: str, options: Mapping[str, Any]) -> PETSc.SNES:
+        snes = PETSc.SNES().create(self.V.mesh.comm)
+        snes.setOptionsPrefix(prefix)
+        snes.setFunction(self._residual_callback, self._b)
+        snes.setJacobian(self._jacobian_callback, self._A)
+        db = PETSc.Options()
+        # Options already in the database (the command line) win over ours.
+        self._options = {prefix + key: value for key, value in options.items() if not db.hasName(prefix + key)}
+        with self._options_set():
+            snes.setFromOptions()
+        snes.setConvergenceHistory(reset=True)
+        snes.setConvergenceTest(self._convergence_test)
+        return snes
+
+    def _convergence_test(self, snes: PETSc.SNES, it: int, norms: tuple[float, float, float]) -> int:
+        """PETSc's default test, with a round-off floor: converged when ``‖F‖ <= 1e-13 k ‖x‖``.
+
+        ``k ‖x‖`` (mean diagonal stiffness × norm of the iterate) is the scale of the internal forces, whose
+        assembly round-off (~1e-16 of it) no Newton iteration can go below; without this floor a small load
+        increment would never meet ``snes_rtol`` relative to its small initial residual.
+        """
+        xnorm, snorm, fnorm = norms
+        reasons = PETSc.SNES.ConvergedReason
+        rtol, atol, stol, max_it = snes.getTolerances()
+        if it == 0:
+            self._initial_fnorm = fnorm
+        if not np.isfinite(fnorm):
+            return reasons.DIVERGED_FNORM_NAN
+        if fnorm <= max(atol, self._ROUNDOFF_FLOOR * self._bc_scale * xnorm):
+            return reasons.CONVERGED_FNORM_ABS
+        if it > 0 and fnorm <= rtol * self._initial_fnorm:
+            return reasons.CONVERGED_FNORM_RELATIVE
+        if it > 0 and snorm <= stol * xnorm:
+            return reasons.CONVERGED_SNORM_RELATIVE
+        if it >= max_it:
+            return reasons.DIVERGED_MAX_IT
+        return reasons.CONVERGED_ITERATING
+
+    @contextlib.contextmanager
+    def _options_set(self):
+        """Our options in the PETSc database while PETSc reads them, removed afterwards.
+
+        They stay during solves too: some are only read when first used (MUMPS ``mat_mumps_*`` at the first
+        factorization, GAMG level smoothers at set-up).
+        """
+        db = PETSc.Options()
+        for key, value in self._options.items():
+            db[key] = value
+        try:
+            yield
+        finally:
+            for key in self._options:
+                db.delValue(key)
+
+    @staticmethod
+    def _inversion_points(mesh: Mesh) -> np.ndarray:
+        """Reference points where det F is checked: the quadrature points of degree 2 and the vertices."""
+        cell = basix.cell.string_to_type(mesh.topology.cell_name())
+        return np.vstack([basix.make_quadrature(cell, 2)[0], basix.geometry(cell)])
+
+    def _mean_diagonal_stiffness(self) -> float:
+        """Mean diagonal of the unconstrained Jacobian at rest: the diagonal of constrained rows."""
+        self._assemble_jacobian(self._A, [], 1.0)
+        diagonal = self._A.getDiagonal()
+        return diagonal.norm(PETSc.NormType.NORM_1) / diagonal.getSize()
+
+    # ----------------------------------------------------------------------------------------------
+    def _sync(self, x: PETSc.Vec) -> None:
+        """Copy the SNES iterate into ``u`` (with ghosts) and update what depends on it."""
+        x.copy(self.u.vector)
+        self.u.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        if self.rotation is not None:
+            self.rotation.update()
+
+    def _residual_callback(self, snes: PETSc.SNES, x: PETSc.Vec, b: PETSc.Vec) -> None:
+        t0 = time.perf_counter()
+        self._sync(x)
+        with b.localForm() as b_local:
+            b_local.set(0.0)
+        assemble_vector(b, self._residual)
+        # Lifting reads the iterate's ghost entries: use u's vector, whose ghosts _sync updated (x's are stale).
+        apply_lifting(b, [self._jacobian], bcs=[self._bcs], x0=[self.u.vector], scale=-1.0)
+        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        set_bc(b, self._bcs, self.u.vector, -self._bc_scale)
+        self.timings["residual"] += time.perf_counter() - t0
+
+    def _jacobian_callback(self, snes: PETSc.SNES, x: PETSc.Vec, A: PETSc.Mat, P: PETSc.Mat) -> None:
+        t0 = time.perf_counter()
+        self._sync(x)
+        self._assemble_jacobian(A, self._bcs, self._bc_scale)
+        self.timings["jacobian"] += time.perf_counter() - t0
+
+    def _assemble_jacobian(self, A: PETSc.Mat, bcs, diagonal: float) -> None:
+        A.zeroEntries()
+        assemble_matrix(A, self._jacobian, bcs=bcs, diagonal=diagonal)
+        A.assemble()
+
+    # ----------------------------------------------------------------------------------------------
+    @property
+    def snes(self) -> PETSc.SNES:
+        """The SNES solver (options prefix as given to the constructor)."""
+        return self._snes
+
+    def min_det_F(self) -> float:
+        """Smallest ``det F`` over quadrature points and vertices of all cells (collective)."""
+        mesh = self.V.mesh
+        cells = np.arange(mesh.topology.index_map(mesh.topology.dim).size_local, dtype=np.int32)
+        local = np.array([self._det_F.eval(cells).min(initial=np.inf)])
+        result = np.empty(1)
+        mesh.comm.Allreduce(local, result, op=MPI.MIN)
+        return float(result[0])
+
+    def _apply_loads(self, loads: LoadState) -> None:
+        self._body_acceleration.value[:] = loads.gravity * self._gravity
+        for name, motion in self.motions.items():
+            motion.set(loads.angles[name], loads.translations[name])
+
+    def _newton(self) -> tuple[bool, str, int, np.ndarray]:
+        """One SNES solve from the current ``u``: (success, reason, iterations, residual history)."""
+        snes = self._snes
+        self.u.vector.copy(self._x)
+        with self._options_set():
+            snes.solve(None, self._x)
+        self._sync(self._x)
+        reason = snes.getConvergedReason()
+        history = snes.getConvergenceHistory()[0].copy()
+        name = _SNES_REASONS.get(reason, str(reason))
+        if reason > 0 and self.model != "linear":
+            det = self.min_det_F()
+            if not det > 0.0:
+                return False, f"inverted element (min det F = {det:.3g})", snes.getIterationNumber(), history
+        return reason > 0, name, snes.getIterationNumber(), history
+
+    def solve_step(self, step: LoadStep) -> StepStats:
+        """Move the loads from their current values to those of ``step`` by increments, with cut-back.
+
+        Raises
+        ------
+        ConvergenceError
+            When an increment fails after ``max_cutbacks`` halvings; ``u`` and the loads are left at the
+            last converged state.
+
+        """
+        t0 = time.perf_counter()
+        stats = StepStats(step.label)
+        start = self.loads
+        target = start.target(step)
+        ds_initial = 1.0 / step.increments
+        ds_min = ds_initial / 2**self.max_cutbacks
+        s, ds = 0.0, ds_initial
+        converged_u = self.u.vector.copy()
+        while target != start and s < 1.0:
+            s_try = 1.0 if s + ds > 1.0 - 1e-12 else s + ds
+            self._apply_loads(start.towards(target, s_try))
+            ok, reason, iterations, history = self._newton()
+            logger.info("step %s, load factor %.4g: %s after %d Newton iterations",
+                        step.label, s_try, reason, iterations)
+            if ok:
+                s = s_try
+                self.u.vector.copy(converged_u)
+                stats.newton_iterations += iterations
+                stats.increments += 1
+                stats.residuals.append(history.tolist())
+                stats.reasons.append(reason)
+                ds = min(2.0 * ds, ds_initial)
+                continue
+            converged_u.copy(self.u.vector)
+            self.u.x.scatter_forward()
+            stats.cutbacks += 1
+            ds *= 0.5
+            if ds < ds_min * (1 - 1e-12):
+                self.loads = start.towards(target, s)
+                self._apply_loads(self.loads)
+                raise ConvergenceError(step.label, s, reason, stats.cutbacks)
+        self.loads = target
+        self._apply_loads(target)
+        if self.rotation is not None:
+            self.rotation.update()
+        stats.min_det_F = self.min_det_F()
+        stats.wall_s = time.perf_counter() - t0
+        return stats
+
+    def run(self, steps: Sequence[LoadStep]) -> list[StepStats]:
+        """Solve the load steps in order; returns the statistics of each."""
+        return [self.solve_step(step) for step in steps]
