@@ -266,22 +266,35 @@ class ElasticityProblem:
 
         self._b = create_vector(self._residual)
         self._x = self.u.vector.duplicate()  # SNES iterate: never u's own storage, which trial points overwrite
-        self._A = create_matrix(self._jacobian)
+        self._synced = (None, None)  # (handle, state) of the vector last copied into u
+        options = {**self.default_options(), **(options or {})}
+        db = PETSc.Options()
+        # Options already in the database (the command line) win over ours.
+        self._options = {prefix + key: value for key, value in options.items() if not db.hasName(prefix + key)}
+        self._A = create_matrix(self._jacobian, self._matrix_type(prefix))
         self._A.setNearNullSpace(rigid_body_modes(self.V))
         self._bc_scale = self._mean_diagonal_stiffness()
-        self._snes = self._create_snes(prefix, {**self.default_options(), **(options or {})})
+        self._snes = self._create_snes(prefix)
         #: accumulated wall time (s) of residual and Jacobian evaluations (assembly + rotation updates)
         self.timings = {"residual": 0.0, "jacobian": 0.0}
 
     # ----------------------------------------------------------------------------------------------
     @staticmethod
     def default_options() -> dict[str, Any]:
-        """Default PETSc options (without prefix): Newton with backtracking line search, MUMPS LU.
+        """Default PETSc options (keys without the prefix): full Newton steps, MUMPS LU.
 
-        ``snes_rtol`` is relative to the residual at the start of each increment; ``snes_stol`` stops
-        when the Newton correction is below 1e-12 of the solution (round-off). For large problems
-        (beyond ~50k dofs) ``{"ksp_type": "cg", "pc_type": "gamg", "ksp_rtol": 1e-10}`` is faster; the
-        rigid-body near-nullspace is always attached to the Jacobian.
+        * ``snes_linesearch_type basic``: full Newton steps, globalised by the load-step cut-back. Measured on
+          large rotations of a slender beam (README): ``bt`` fails (a good Newton step raises the residual
+          norm by orders of magnitude through transient membrane forces, and backtracking on that norm then
+          stalls), ``l2`` converges with 1.5–4× more iterations, ``cp`` is slower still.
+        * ``snes_rtol`` is relative to the residual at the start of each increment; an increment also
+          converges once the residual is at the round-off floor (``1e-13 k ‖x‖``, see ``_convergence_test``)
+          or the Newton correction is below ``snes_stol`` of the solution.
+        * ``mat_type`` (read by this class, not by PETSc): ``None`` picks ``baij`` (3×3 blocks, half the
+          assembly time of ``aij``) for direct solvers and ``aij`` otherwise (GAMG needs it).
+        * Large problems: ``{"ksp_type": "cg", "pc_type": "gamg", "ksp_rtol": 1e-8}`` (``gmres`` for the
+          corotational model with a TI material, whose exact tangent is not symmetric); the rigid-body
+          near-nullspace is always attached to the Jacobian. See ``bench/bench_newton.py`` for when it wins.
         """
         return {
             "snes_type": "newtonls",
@@ -292,16 +305,30 @@ class ElasticityProblem:
             "ksp_type": "preonly",
             "pc_type": "lu",
             "pc_factor_mat_solver_type": "mumps",
+            "mat_type": None,
         }
 
-    def _create_snes(self, prefix: str, options: Mapping[str, Any]) -> PETSc.SNES:
+    def _option(self, prefix: str, key: str) -> str | None:
+        """The effective value of an option (the database first), as a string; ``None`` if unset."""
+        db = PETSc.Options()
+        if db.hasName(prefix + key):
+            return db.getString(prefix + key)
+        value = self._options.get(prefix + key)
+        return None if value is None else str(value)
+
+    def _matrix_type(self, prefix: str) -> str:
+        """``mat_type`` (ours, not a PETSc option of the SNES), else baij for direct solvers, aij otherwise."""
+        matrix_type = self._option(prefix, "mat_type")
+        self._options.pop(prefix + "mat_type", None)  # never passed to PETSc
+        if matrix_type is None:
+            matrix_type = "baij" if self._option(prefix, "pc_type") in ("lu", "cholesky") else "aij"
+        return matrix_type
+
+    def _create_snes(self, prefix: str) -> PETSc.SNES:
         snes = PETSc.SNES().create(self.V.mesh.comm)
         snes.setOptionsPrefix(prefix)
         snes.setFunction(self._residual_callback, self._b)
         snes.setJacobian(self._jacobian_callback, self._A)
-        db = PETSc.Options()
-        # Options already in the database (the command line) win over ours.
-        self._options = {prefix + key: value for key, value in options.items() if not db.hasName(prefix + key)}
         with self._options_set():
             snes.setFromOptions()
         snes.setConvergenceHistory(reset=True)
@@ -362,7 +389,15 @@ class ElasticityProblem:
 
     # ----------------------------------------------------------------------------------------------
     def _sync(self, x: PETSc.Vec) -> None:
-        """Copy the SNES iterate into ``u`` (with ghosts) and update what depends on it."""
+        """Copy the SNES iterate into ``u`` (with ghosts) and update what depends on it.
+
+        Skipped when ``x`` is the SNES solution vector, unchanged since it was last copied (the Jacobian
+        is evaluated at the point of the last residual).
+        """
+        synced = (x.handle, x.stateGet())
+        if x.handle == self._x.handle and synced == self._synced:
+            return
+        self._synced = synced
         x.copy(self.u.vector)
         self.u.vector.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
         if self.rotation is not None:
