@@ -381,6 +381,7 @@ class VoronoiFoam:
         The valid density range for these seeds and gamma (see :meth:`density_range`).
     summary : FoamSummary
         Number of struts, mean strut length and mean ``|cos|`` of strut directions with x, y, z.
+
     """
 
     def __init__(self, n_cells: int, density: float, gamma: float = 1.0, seed: int = 0, strut: str = "cylinder"):
@@ -497,9 +498,8 @@ class VoronoiFoam:
         centres of an ``N³`` grid padded by one voxel on each side (where ``f < 0``), so the surface is closed
         and caps the struts exactly on the cube faces. Returns the path.
         """
-        from skimage.measure import marching_cubes
-
         import meshio
+        from skimage.measure import marching_cubes
 
         _check_int("N", N, 8)
         path = Path(path)
