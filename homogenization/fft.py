@@ -107,6 +107,10 @@ class FFTConvergenceError(RuntimeError):
         self.case = case
         self.residuals = residuals
 
+    def __reduce__(self):
+        # picklable across processes (multiprocessing, the benchmark's child processes)
+        return type(self), (self.args[0], self.case, self.residuals)
+
 
 # --------------------------------------------------------------------------------------------------
 # Discrete wave vectors

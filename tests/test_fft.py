@@ -286,3 +286,11 @@ def test_wave_directions_zero_where_g_vanishes():
 def test_bad_inputs(phases, materials, kwargs, match):
     with pytest.raises(ValueError, match=match):
         homogenize_fft(phases, materials, **kwargs)
+
+
+def test_convergence_error_survives_pickling():
+    """The error crosses process boundaries (multiprocessing, the benchmark) with its case and residuals."""
+    import pickle
+
+    err = pickle.loads(pickle.dumps(FFTConvergenceError("no convergence", 3, [1.0, 0.5])))
+    assert (str(err), err.case, err.residuals) == ("no convergence", 3, [1.0, 0.5])
