@@ -1,0 +1,279 @@
+"""Homogenized foam tables: C_hom against relative density × anisotropy γ × seed (paper Fig. 4).
+
+One *sample* is one foam ``meshes.foam.VoronoiFoam(n_cells, density, gamma, seed)`` voxelized at ``N``³ and
+homogenized by :func:`homogenization.fft.homogenize_fft` (CG, rotated scheme) with an isotropic solid of
+``E_s = 1`` and ``ν_s = 0.3`` and a void of zero stiffness, so every modulus in the table is already
+normalised by the solid's Young's modulus (it scales linearly with ``E_s``; ``ν_s`` is fixed).
+
+A row holds the inputs, the measured solid fraction, the 21 independent entries of the Voigt ``C``, the
+engineering constants (E1..E3, G23, G13, G12, ν_ij), the closest transversely isotropic stiffness with its
+*l* axis along the foam's distinct axis x (``ti_E_t, ti_E_l, ti_nu_t, ti_nu_tl, ti_G_l`` and its relative
+error ``ti_error``), the closest isotropic one (``iso_E, iso_nu, iso_error``), the CG iterations, the wall
+time and the software version. :func:`aggregate` reduces the samples to the mean and the sample standard
+deviation over seeds per (density, γ); ``fenicsfoam.materials.foam_material`` interpolates that table.
+
+The sweep (:func:`run_sweep`) caches every finished sample as one JSON file named after all its inputs
+(written to a temporary file and renamed, so a file present is complete): an interrupted sweep resumes where it
+stopped and never recomputes a sample. Under MPI the samples are dealt round-robin to the ranks, each rank
+using ``cores / ranks`` FFTW threads; rank 0 assembles the table.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import os
+import tempfile
+import time
+from collections.abc import Iterable, Sequence
+from dataclasses import asdict, dataclass
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+
+from homogenization.fft import homogenize_fft
+from homogenization.tensors import (
+    closest_isotropic,
+    closest_transverse_isotropic,
+    engineering_constants,
+    isotropic_voigt,
+)
+
+log = logging.getLogger(__name__)
+
+#: The sweep of the shipped table (issue: at least these densities and γ, at least 3 seeds).
+DENSITIES = (0.09, 0.12, 0.15, 0.18, 0.22, 0.26, 0.30, 0.34)
+GAMMAS = (1.0, 0.5, 0.3, 0.1)
+SEEDS = (0, 1, 2)
+#: Poisson's ratio of the solid the table was computed with (moduli scale with E_s; ν_s cannot be rescaled).
+NU_SOLID = 0.3
+#: The shipped tables (package data).
+DATA_DIR = Path(__file__).parent / "data"
+SAMPLES_CSV = DATA_DIR / "foam_table_samples.csv"
+TABLE_CSV = DATA_DIR / "foam_table.csv"
+
+ENGINEERING = ("E1", "E2", "E3", "G23", "G13", "G12", "nu12", "nu13", "nu21", "nu23", "nu31", "nu32")
+TI_FIT = ("ti_E_t", "ti_E_l", "ti_nu_t", "ti_nu_tl", "ti_G_l", "ti_error")
+ISO_FIT = ("iso_E", "iso_nu", "iso_error")
+C_ENTRIES = tuple(f"C{i + 1}{j + 1}" for i in range(6) for j in range(i, 6))
+INPUTS = ("density", "gamma", "seed", "n_cells", "resolution", "tol")
+SAMPLE_COLUMNS = (INPUTS + ("measured_density", "radius") + C_ENTRIES + ENGINEERING + TI_FIT + ISO_FIT
+                  + ("iterations", "wall_s", "version"))
+#: Columns averaged over seeds by :func:`aggregate` (mean and ``<name>_std``).
+AGGREGATED = ("measured_density",) + ENGINEERING + TI_FIT + ISO_FIT
+
+
+@dataclass(frozen=True)
+class SweepSettings:
+    """Discretization of every sample of a sweep.
+
+    Parameters
+    ----------
+    n_cells
+        Voronoi cells per RVE.
+    resolution
+        FFT grid ``N`` (voxels per side).
+    tol
+        CG tolerance on the relative equilibrium residual.
+
+    """
+
+    n_cells: int = 8
+    resolution: int = 48
+    tol: float = 1e-4
+
+    def __post_init__(self):
+        if int(self.n_cells) != self.n_cells or self.n_cells < 2:
+            raise ValueError(f"n_cells must be an integer >= 2, got {self.n_cells!r}")
+        if int(self.resolution) != self.resolution or self.resolution < 8:
+            raise ValueError(f"resolution must be an integer >= 8, got {self.resolution!r}")
+        if not 0 < self.tol < 1:
+            raise ValueError(f"tol must lie in (0, 1), got {self.tol!r}")
+
+
+@dataclass(frozen=True, order=True)
+class Sample:
+    """One foam of the sweep."""
+
+    density: float
+    gamma: float
+    seed: int
+
+
+def grid(densities: Iterable[float] = DENSITIES, gammas: Iterable[float] = GAMMAS,
+         seeds: Iterable[int] = SEEDS) -> list[Sample]:
+    """All (density, γ, seed) combinations, in a fixed order."""
+    return sorted(Sample(float(d), float(g), int(s)) for d in densities for g in gammas for s in seeds)
+
+
+def cache_name(sample: Sample, settings: SweepSettings) -> str:
+    """File name of a sample's cache entry: every input that changes its result."""
+    return (f"d{sample.density:.4f}_g{sample.gamma:.4f}_s{sample.seed}_n{settings.n_cells}"
+            f"_N{settings.resolution}_tol{settings.tol:.0e}.json")
+
+
+def _version() -> str:
+    try:
+        return metadata.version("fenicsfoam")
+    except metadata.PackageNotFoundError:  # pragma: no cover - not installed
+        return "unknown"
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file in the same directory and a rename."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", newline="") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def homogenize_sample(sample: Sample, settings: SweepSettings, threads: int | None = None) -> dict:
+    """Build, voxelize and homogenize one foam; return its table row (moduli normalised by E_s = 1).
+
+    The TI fit takes the foam's distinct axis x as its *l* axis (DESIGN.md): ``ti_E_l`` is the modulus along x.
+    Raises ``meshes.foam.FoamParameterError`` for a density the foam cannot reach and
+    ``homogenization.fft.FFTConvergenceError`` when CG does not converge.
+    """
+    from meshes.foam import VoronoiFoam
+
+    start = time.perf_counter()
+    foam = VoronoiFoam(settings.n_cells, sample.density, sample.gamma, seed=sample.seed)
+    image = foam.voxelize(settings.resolution).astype(np.int8)
+    r = homogenize_fft(image, [np.zeros((6, 6)), isotropic_voigt(1.0, NU_SOLID)], tol=settings.tol,
+                       threads=threads)
+    row = {"density": sample.density, "gamma": sample.gamma, "seed": sample.seed, "n_cells": settings.n_cells,
+           "resolution": settings.resolution, "tol": settings.tol,
+           "measured_density": float(foam.measured_density), "radius": float(foam.radius)}
+    row.update({name: float(r.C[int(name[1]) - 1, int(name[2]) - 1]) for name in C_ENTRIES})
+    row.update(engineering_constants(r.C))
+    ti = closest_transverse_isotropic(r.C, axis=(1.0, 0.0, 0.0))
+    row.update(ti_E_t=ti.E_t, ti_E_l=ti.E_l, ti_nu_t=ti.nu_t, ti_nu_tl=ti.nu_tl, ti_G_l=ti.G_l, ti_error=ti.error)
+    iso = closest_isotropic(r.C)
+    row.update(iso_E=iso.E, iso_nu=iso.nu, iso_error=iso.error)
+    row.update(iterations=int(sum(r.iterations)), wall_s=time.perf_counter() - start, version=_version())
+    return {k: row[k] for k in SAMPLE_COLUMNS}
+
+
+def _default_threads(comm) -> int:
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        cores = os.cpu_count() or 1
+    return max(1, cores // comm.size)
+
+
+def run_sweep(samples: Sequence[Sample], settings: SweepSettings, cache_dir: str | os.PathLike, comm=None, *,
+              threads: int | None = None, progress: bool = True, stop_after: int | None = None) -> list[dict] | None:
+    """Homogenize every sample not yet in ``cache_dir``; return all rows (sorted) on every rank.
+
+    Parameters
+    ----------
+    samples
+        The foams to compute (see :func:`grid`).
+    settings
+        Resolution, cells per RVE and tolerance of every sample.
+    cache_dir
+        One JSON file per finished sample (:func:`cache_name`); existing files are read, never recomputed.
+    comm
+        MPI communicator (default ``MPI.COMM_WORLD``); samples are dealt round-robin to its ranks.
+    threads
+        FFTW threads per rank (default: the process's CPUs divided by the number of ranks).
+    progress
+        tqdm bar on rank 0 (over rank 0's share of the samples).
+    stop_after
+        Stop each rank after computing this many new samples (to test and demonstrate resuming); the rows
+        are then not all present and ``None`` is returned.
+
+    """
+    from mpi4py import MPI
+    from tqdm import tqdm
+
+    comm = MPI.COMM_WORLD if comm is None else comm
+    cache = Path(cache_dir)
+    cache.mkdir(parents=True, exist_ok=True)
+    threads = _default_threads(comm) if threads is None else threads
+    mine = [s for s in list(samples)[comm.rank::comm.size] if not (cache / cache_name(s, settings)).exists()]
+    if stop_after is not None:
+        mine = mine[:stop_after]
+    failure = None
+    for sample in tqdm(mine, desc=f"foam samples (rank 0 of {comm.size})", disable=not progress or comm.rank != 0):
+        try:
+            row = homogenize_sample(sample, settings, threads)
+        except Exception as exc:  # reported below on every rank, never swallowed
+            failure = f"{sample}: {type(exc).__name__}: {exc}"
+            break
+        _write_atomic(cache / cache_name(sample, settings), json.dumps(row, indent=1))
+    failures = [f for f in comm.allgather(failure) if f]
+    if failures:
+        raise RuntimeError("foam sweep failed (finished samples stay cached): " + "; ".join(failures))
+    comm.barrier()
+    if stop_after is not None:
+        return None
+    return [json.loads((cache / cache_name(s, settings)).read_text()) for s in sorted(samples)]
+
+
+def aggregate(rows: Sequence[dict]) -> list[dict]:
+    """Mean and sample standard deviation (``<name>_std``) over seeds for every (density, γ)."""
+    groups: dict[tuple[float, float], list[dict]] = {}
+    for row in rows:
+        groups.setdefault((float(row["density"]), float(row["gamma"])), []).append(row)
+    table = []
+    for (density, gamma), members in sorted(groups.items()):
+        out = {"density": density, "gamma": gamma, "n_seeds": len(members)}
+        for name in AGGREGATED:
+            values = np.array([float(m[name]) for m in members])
+            out[name] = float(values.mean())
+            out[f"{name}_std"] = float(values.std(ddof=1)) if len(values) > 1 else 0.0
+        table.append(out)
+    return table
+
+
+def to_csv(rows: Sequence[dict], path: str | os.PathLike) -> Path:
+    """Write rows (dicts with the same keys) as CSV, atomically."""
+    path = Path(path)
+    columns = list(rows[0])
+    lines = [",".join(columns)]
+    for row in rows:
+        lines.append(",".join(repr(row[c]) if isinstance(row[c], float) else str(row[c]) for c in columns))
+    _write_atomic(path, "\n".join(lines) + "\n")
+    return path
+
+
+def read_csv(path: str | os.PathLike) -> dict[str, np.ndarray]:
+    """Read a table written by :func:`to_csv` as ``{column: array}`` (numeric columns as float)."""
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    if not rows:
+        raise ValueError(f"{path}: empty table")
+    out = {}
+    for name in rows[0]:
+        values = [r[name] for r in rows]
+        try:
+            out[name] = np.array([float(v) for v in values])
+        except ValueError:
+            out[name] = np.array(values)
+    return out
+
+
+def write_tables(rows: Sequence[dict], out_dir: str | os.PathLike, provenance: dict) -> dict[str, Path]:
+    """Write ``foam_table_samples.csv``, ``foam_table.csv`` (aggregated) and ``foam_table_provenance.json``."""
+    out = Path(out_dir)
+    return {"samples": to_csv(rows, out / SAMPLES_CSV.name), "table": to_csv(aggregate(rows), out / TABLE_CSV.name),
+            "provenance": _write_atomic_json(out / "foam_table_provenance.json", provenance)}
+
+
+def _write_atomic_json(path: Path, data: dict) -> Path:
+    _write_atomic(path, json.dumps(data, indent=2) + "\n")
+    return path
+
+
+def settings_dict(settings: SweepSettings) -> dict:
+    """The settings as recorded in the provenance, with the fixed solver choices."""
+    return asdict(settings) | {"nu_solid": NU_SOLID, "scheme": "cg", "discretization": "rotated"}
