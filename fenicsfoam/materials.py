@@ -8,14 +8,17 @@ The materials are plain constants (no dolfinx here); :class:`fenicsfoam.constitu
 ``{cell tag: material}`` map into the DG0 coefficient fields the UFL forms use. Every tensor operation
 (stiffness, compliance, engineering constants, closest TI fit, admissibility) is the one of
 :mod:`homogenization.tensors`. A foam material from homogenized tables (``foam_material``) is added to
-this module by the tables work.
+the shipped table of :mod:`homogenization.tables` (:func:`foam_material`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
+from scipy.interpolate import PchipInterpolator
 
 from homogenization.tensors import (
     InadmissibleMaterialError,
@@ -27,7 +30,7 @@ from homogenization.tensors import (
     transverse_isotropic_voigt,
 )
 
-__all__ = ["InadmissibleMaterialError", "Isotropic", "Material", "TransverseIsotropic"]
+__all__ = ["InadmissibleMaterialError", "Isotropic", "Material", "TransverseIsotropic", "foam_material"]
 
 
 def _check_density(rho: float) -> None:
@@ -168,3 +171,97 @@ class TransverseIsotropic:
 
 #: Any material of the macro model.
 Material = Isotropic | TransverseIsotropic
+
+
+FOAM_FITS = ("transverse", "isotropic", "paper")
+#: Table columns interpolated in log space (moduli); the others (Poisson's ratios) linearly.
+_MODULI = {"E1", "E2", "E3", "G23", "G13", "G12", "ti_E_t", "ti_E_l", "ti_G_l", "iso_E"}
+
+
+@lru_cache(maxsize=4)
+def _foam_table(path: str) -> dict[str, np.ndarray]:
+    from homogenization.tables import read_csv
+
+    return read_csv(path)
+
+
+def _interpolate(table: dict[str, np.ndarray], name: str, density: float, gamma: float) -> float:
+    """Monotone (PCHIP) interpolation of a table column: over density per tabulated γ, then over log γ.
+
+    Moduli are interpolated as ``log q``, Poisson's ratios as ``q``; both reproduce the table exactly at its
+    nodes, and PCHIP keeps every monotone stretch of the data monotone (no overshoot between nodes).
+    """
+    gammas = np.unique(table["gamma"])
+    per_gamma = []
+    for g in gammas:
+        rows = table["gamma"] == g
+        x, y = table["density"][rows], table[name][rows]
+        order = np.argsort(x)
+        y = np.log(y[order]) if name in _MODULI else y[order]
+        per_gamma.append(float(PchipInterpolator(x[order], y)(density)))
+    value = float(PchipInterpolator(np.log(gammas), per_gamma)(np.log(gamma))) if len(gammas) > 1 else per_gamma[0]
+    return float(np.exp(value)) if name in _MODULI else value
+
+
+def foam_material(density: float, gamma: float, E_solid: float, nu_solid: float, *, rho_solid: float = 0.0,
+                  fit: str = "transverse", table: str | Path | None = None) -> Isotropic | TransverseIsotropic:
+    """Homogenized constants of a stochastic Voronoi foam, from the shipped table (:mod:`homogenization.tables`).
+
+    The table holds, per (relative density, γ), the seed-averaged homogenized constants of foams of an
+    isotropic solid with ``E_s = 1``, ``ν_s = 0.3``; moduli scale linearly with ``E_solid``, and the mass
+    density is ``rho_solid · density``. Between table nodes the constants are interpolated monotonically
+    (PCHIP in density, then in log γ; moduli in log space).
+
+    Parameters
+    ----------
+    density
+        Relative density (solid volume fraction) within the tabulated range.
+    gamma
+        Degree of anisotropy γ within the tabulated range (γ = 1 isotropic).
+    E_solid, nu_solid
+        The printed solid's Young's modulus (Pa) and Poisson's ratio; ``nu_solid`` must be the table's (0.3).
+    rho_solid
+        The solid's mass density (kg/m³).
+    fit
+        ``"transverse"``: the closest TI stiffness with *l* = the foam's distinct (soft for γ < 1) axis x
+        (``TransverseIsotropic``, local axis 3 = *l*: orient it with the foam's x axis).
+        ``"isotropic"``: the closest isotropic stiffness. ``"paper"``: the paper's averaging of engineering
+        constants — for γ = 1 ``Isotropic(E = mean(E1, E2, E3), ν = mean of the six ν_ij)``, otherwise
+        ``TransverseIsotropic(E_t = mean(E2, E3), E_l = E1, nu_t = mean(ν23, ν32), nu_tl = mean(ν21, ν31),
+        G_l = mean(G12, G13))``.
+    table
+        Aggregated table CSV (default: the shipped ``homogenization/data/foam_table.csv``).
+
+    """
+    from homogenization.tables import NU_SOLID, TABLE_CSV
+
+    if fit not in FOAM_FITS:
+        raise ValueError(f"fit must be one of {FOAM_FITS}, got {fit!r}")
+    if not (np.isfinite(E_solid) and E_solid > 0):
+        raise InadmissibleMaterialError(f"E_solid must be > 0 Pa, got {E_solid!r}")
+    if not np.isclose(nu_solid, NU_SOLID, rtol=0, atol=1e-12):
+        raise ValueError(f"nu_solid = {nu_solid!r}: the foam table was computed for a solid with nu = {NU_SOLID} "
+                         "(moduli scale with E_solid, Poisson's ratio cannot be rescaled); recompute the table "
+                         "(demos/homogenization_table.py) for another solid")
+    data = _foam_table(str(Path(table) if table is not None else TABLE_CSV))
+    for name, value, nodes in (("density", density, data["density"]), ("gamma", gamma, data["gamma"])):
+        lo, hi = float(nodes.min()), float(nodes.max())
+        if not (np.isfinite(value) and lo - 1e-12 <= value <= hi + 1e-12):
+            raise ValueError(f"{name} = {value!r} is outside the tabulated range [{lo:g}, {hi:g}] of the foam table")
+
+    def q(name: str) -> float:
+        return _interpolate(data, name, density, gamma)
+
+    rho = rho_solid * density
+    if fit == "transverse":
+        return TransverseIsotropic(E_t=E_solid * q("ti_E_t"), E_l=E_solid * q("ti_E_l"), nu_t=q("ti_nu_t"),
+                                   nu_tl=q("ti_nu_tl"), G_l=E_solid * q("ti_G_l"), rho=rho)
+    if fit == "isotropic":
+        return Isotropic(E=E_solid * q("iso_E"), nu=q("iso_nu"), rho=rho)
+    if gamma == 1.0:
+        E = np.mean([q("E1"), q("E2"), q("E3")])
+        nu = np.mean([q(n) for n in ("nu12", "nu13", "nu21", "nu23", "nu31", "nu32")])
+        return Isotropic(E=E_solid * float(E), nu=float(nu), rho=rho)
+    return TransverseIsotropic(E_t=E_solid * (q("E2") + q("E3")) / 2, E_l=E_solid * q("E1"),
+                               nu_t=(q("nu23") + q("nu32")) / 2, nu_tl=(q("nu21") + q("nu31")) / 2,
+                               G_l=E_solid * (q("G12") + q("G13")) / 2, rho=rho)
