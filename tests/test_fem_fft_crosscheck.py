@@ -1,0 +1,72 @@
+"""Two-way check of the FFT and FEM homogenization solvers on the same voxelized foam (meshes.voxel)."""
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from homogenization.fem import homogenize_fem
+from homogenization.fft import homogenize_fft
+from homogenization.tensors import isotropic_voigt
+from meshes.foam import VoronoiFoam
+from meshes.voxel import SOLID, VOID, upsample, voxel_mesh
+
+SOLID_C = isotropic_voigt(1.0, 0.3)
+VOID_C = np.zeros((6, 6))
+
+
+@pytest.fixture(scope="module")
+def image():
+    """A small percolating foam (3 cells, 30 %) on a 10³ grid."""
+    return VoronoiFoam(3, 0.3, 1.0, seed=1).voxelize(10)
+
+
+def test_voxel_mesh_tags_reproduce_the_image(image):
+    msh, tags = voxel_mesh(image, MPI.COMM_WORLD, refine=2)
+    tdim = msh.topology.dim
+    solid = msh.comm.allreduce(int(np.sum(tags.values == SOLID)), op=MPI.SUM)
+    total = msh.topology.index_map(tdim).size_global
+    assert solid / total == pytest.approx(image.mean(), abs=1e-12)
+    assert np.array_equal(upsample(image, 2)[::2, ::2, ::2], image)
+
+
+def test_fem_and_fft_bracket_and_approach_each_other(image):
+    """Same voxel geometry, refined discretizations (each voxel split into k³ elements / FFT voxels).
+
+    The conforming FEM (displacement-based) stiffness is an upper bound in energy that decreases under nested
+    refinement (Q1 k=1 ⊂ Q1 k=2, Q1 ⊂ Q2); the FFT rotated scheme (hexahedra with one-point integration) is
+    softer and increases. Measured on this foam (C11): FFT 0.068, 0.087 and FEM 0.123, 0.107 (Q1), 0.101 (Q2):
+    the methods bracket the voxel geometry's stiffness and the gap halves per refinement.
+    """
+    fft = [homogenize_fft(upsample(image, k).astype(np.int8), [VOID_C, SOLID_C], tol=1e-8).C for k in (1, 2)]
+    fem = []
+    for k, degree in ((1, 1), (2, 1), (1, 2)):
+        msh, tags = voxel_mesh(image, MPI.COMM_WORLD, refine=k)
+        fem.append(homogenize_fem(msh, tags, {SOLID: SOLID_C, VOID: VOID_C}, degree=degree).C)
+    d_fft = np.array([np.diag(C) for C in fft])
+    d_fem = np.array([np.diag(C) for C in fem])
+    assert np.all(d_fft[1] > d_fft[0])                      # FFT stiffens under refinement
+    assert np.all(d_fem[1] < d_fem[0]) and np.all(d_fem[2] < d_fem[0])   # FEM softens (nested spaces)
+    assert np.all(d_fft[1] < d_fem[1]) and np.all(d_fft[1] < d_fem[2])   # bracket
+    gap = [np.linalg.norm(fem[i] - fft[min(i, 1)]) / np.linalg.norm(fem[i]) for i in (0, 1)]
+    assert gap[1] < 0.6 * gap[0]
+
+
+@pytest.mark.mpi
+def test_voxel_fem_is_partition_independent(image):
+    """Same C on 1 and 2 ranks (the mpi run compares its result with a serial solve on rank 0)."""
+    msh, tags = voxel_mesh(image, MPI.COMM_WORLD)
+    C = homogenize_fem(msh, tags, {SOLID: SOLID_C, VOID: VOID_C}).C
+    if MPI.COMM_WORLD.rank == 0:
+        m1, t1 = voxel_mesh(image, MPI.COMM_SELF)
+        C1 = homogenize_fem(m1, t1, {SOLID: SOLID_C, VOID: VOID_C}, comm=MPI.COMM_SELF).C
+        np.testing.assert_allclose(C, C1, rtol=1e-8, atol=1e-12)
+
+
+@pytest.mark.parametrize(("args", "match"), [
+    ((np.zeros((4, 4)),), r"image must be a non-empty 3D array, got shape \(4, 4\)"),
+    ((np.full((2, 2, 2), 3),), r"image must hold 0/1"),
+    ((np.ones((2, 2, 2)), MPI.COMM_WORLD, 0), r"refine must be an integer >= 1, got 0"),
+])
+def test_voxel_mesh_rejects_bad_input(args, match):
+    with pytest.raises(ValueError, match=match):
+        voxel_mesh(*args)
