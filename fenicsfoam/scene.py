@@ -519,18 +519,26 @@ def _import_callable(spec: str) -> Callable[[np.ndarray], np.ndarray]:
         raise SceneError(f"orientation.function: cannot import {spec!r}: {exc}") from exc
 
 
-def _build_orientation(scene: Scene, mesh, cell_tags, isotropic: bool):
+def _check_orientation(scene: Scene, materials: Mapping[str, Any]) -> None:
+    """An orientation is required with a TI region and refused when every region is isotropic."""
+    from fenicsfoam.materials import Isotropic
+    anisotropic = [name for name, m in materials.items() if not isinstance(m, Isotropic)]
+    if not anisotropic and scene.orientation is not None:
+        raise SceneError("orientation: every region is isotropic, so an orientation field would have no effect; "
+                         "remove the [orientation] table (or make a region anisotropic)")
+    if anisotropic and scene.orientation is None:
+        raise SceneError(f"orientation: missing; the transversely isotropic region(s) {', '.join(anisotropic)} "
+                         "need an [orientation] table (kind = uniform, per_tag, spiral or callable)")
+    if scene.orientation is not None and scene.orientation["kind"] == "callable":
+        _import_callable(scene.orientation["function"])
+
+
+def _build_orientation(scene: Scene, mesh, cell_tags):
+    """The DG0 l-axis field the scene declares (None for an isotropic scene)."""
     from fenicsfoam import orientation as orient
-    if isotropic:
-        if scene.orientation is not None:
-            raise SceneError("orientation: every region is isotropic, so an orientation field has no effect; "
-                             "remove the [orientation] table (or use anisotropic regions)")
-        return None
     spec = scene.orientation
     if spec is None:
-        raise SceneError("orientation: missing; regions " + ", ".join(
-            repr(r.name) for r in scene.regions if r.material != "isotropic") + " may be anisotropic and need "
-            "an [orientation] table (kind = uniform, per_tag, spiral or callable)")
+        return None
     try:
         if spec["kind"] == "uniform":
             return orient.uniform(mesh, spec["direction"])
@@ -563,6 +571,7 @@ def _build(scene: Scene, comm) -> _Model:
     from fenicsfoam.solver import ElasticityProblem, LoadStep
 
     resolved = {region.name: _resolve_material(region) for region in scene.regions}  # before meshing: fail fast
+    _check_orientation(scene, resolved)
     params = dict(scene.geometry)
     if scene.builder == "beam":
         from meshes.beam import TIP_FACE, make_beam
@@ -578,7 +587,7 @@ def _build(scene: Scene, comm) -> _Model:
     mesh, cell_tags = tagged.mesh, tagged.cell_tags
     materials = {tag: resolved[region.name] for region in scene.regions for tag in region.tags}
     field = MaterialField.from_regions(mesh, cell_tags, materials)
-    a = _build_orientation(scene, mesh, cell_tags, field.isotropic)
+    a = _build_orientation(scene, mesh, cell_tags)
 
     motions = []
     if scene.clamp:
