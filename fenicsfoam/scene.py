@@ -16,7 +16,7 @@ Layout of a scene (SI units; servo angles in degrees)::
     [loads]         gravity = [gx, gy, gz], clamp = [facet tags] | "name", servos = true
     [[steps]]       label, gravity (factor), servo_deg (one angle or three), increments
     probes = ["tip_deflection"] | ["center_height", "center_rotation"]
-    [outputs]       xdmf = true, png = true
+    [outputs]       xdmf = true, png = true | false | [step labels]
 
 Modelling choices (documented, not fitted):
 
@@ -229,7 +229,7 @@ class Scene:
     steps: tuple[Step, ...]
     probes: tuple[str, ...]
     xdmf: bool
-    png: bool
+    png: tuple[str, ...]              #: labels of the steps pictured (the orientation is pictured with any)
 
 
 def _builder_info(builder: str) -> tuple[dict[str, Any], dict[str, tuple[int, ...]], dict[str, tuple[int, ...]]]:
@@ -434,12 +434,20 @@ def parse_scene(data: Mapping[str, Any]) -> Scene:
         raise SceneError("probes: 'tip_deflection' is measured along gravity; give loads.gravity")
 
     outputs = scene.table("outputs") or _Table({}, "outputs")
-    xdmf, png = outputs.boolean("xdmf", True), outputs.boolean("png", True)
+    xdmf = outputs.boolean("xdmf", True)
+    png_value = outputs.raw("png", True)
+    if isinstance(png_value, bool):
+        png = labels if png_value else []
+    elif isinstance(png_value, list) and all(label in labels for label in png_value):
+        png = list(png_value)
+    else:
+        raise SceneError(f"outputs.png: expected true, false or an array of step labels ({labels}), "
+                         f"got {_type_name(png_value)} {png_value!r}")
     outputs.done()
     scene.done()
     return Scene(raw=dict(data), name=name, builder=builder, geometry=geometry, model=model, degree=degree,
                  petsc=petsc_options, regions=regions, orientation=orientation, gravity=gravity, clamp=clamp,
-                 servos=servos, steps=steps, probes=tuple(dict.fromkeys(probes_value)), xdmf=xdmf, png=png)
+                 servos=servos, steps=steps, probes=tuple(dict.fromkeys(probes_value)), xdmf=xdmf, png=tuple(png))
 
 
 def load_scene(source: str | os.PathLike | Mapping[str, Any]) -> Scene:
@@ -781,7 +789,7 @@ def run_scene(source: str | os.PathLike | Mapping[str, Any] | Scene, out_dir: st
             out.mkdir(parents=True, exist_ok=True)
         comm.Barrier()
     series = _XdmfSeries(comm, out, problem.V.mesh) if out is not None and scene.xdmf else None
-    pictures = out is not None and scene.png
+    pictures = scene.png if out is not None else ()
     failure = None
     try:
         for index, step in enumerate(model.steps):
@@ -797,7 +805,7 @@ def run_scene(source: str | os.PathLike | Mapping[str, Any] | Scene, out_dir: st
             logger.info("scene %s, step %s: %s", scene.name, step.label, result.steps[-1].probes)
             if series is not None:
                 series.write(problem.u, float(index))
-            if pictures:
+            if step.label in pictures:
                 from fenicsfoam.plotting import plot_displacement
                 plot_displacement(problem.u, out / f"{step.label}.png", title=f"{scene.name}: {step.label}")
     except BaseException:

@@ -96,6 +96,7 @@ def edited(scene, path, value):
     ("steps.0.increments", 0, r"^steps\[0\]\.increments: 0 is out of range; valid: an integer >= 1"),
     ("steps", [], r"^steps: expected a non-empty array of tables"),
     ("probes", ["center_rotation"], r"^probes: 'center_rotation' needs the tripod builder"),
+    ("outputs.png", ["final"], r"^outputs\.png: expected true, false or an array of step labels"),
     ("fem.model", "neo_hookean", r"^fem\.model: 'neo_hookean' is not valid; valid: 'linear', 'svk', 'corotational'"),
 ])
 def test_invalid_scene_names_the_key(path, value, message):
