@@ -289,3 +289,12 @@ def test_probes_do_not_depend_on_the_partition():
     for a, b in zip(parallel.steps, serial.steps):
         for name, value in b.probes.items():
             assert a.probes[name] == pytest.approx(value, rel=1e-7, abs=1e-10), (a.label, name)
+
+
+def test_fenicsfoam_run_reports_an_invalid_scene(tmp_path):
+    from fenicsfoam.cli import main
+
+    path = tmp_path / "bad.toml"
+    path.write_text('[geometry]\nbuilder = "beam"\nh = "fine"\n')
+    assert main(["run", str(path), "--out", str(tmp_path / "out")]) == 2
+    assert not (tmp_path / "out").exists()
