@@ -298,3 +298,18 @@ def test_fenicsfoam_run_reports_an_invalid_scene(tmp_path):
     path.write_text('[geometry]\nbuilder = "beam"\nh = "fine"\n')
     assert main(["run", str(path), "--out", str(tmp_path / "out")]) == 2
     assert not (tmp_path / "out").exists()
+
+
+def test_non_convergence_writes_the_steps_done_and_raises(tmp_path):
+    from fenicsfoam.solver import ConvergenceError
+
+    scene = beam_scene()
+    scene["fem"] = {"petsc": {"snes_max_it": 1}}  # one Newton iteration cannot converge the corotational sag
+    scene["steps"] = [{"label": "rest", "gravity": 0.0}, {"label": "full", "gravity": 1.0}]  # rest: nothing moves
+    scene["outputs"] = {"png": False}
+    with pytest.raises(ConvergenceError, match="load step 'full' failed"):
+        run_scene(scene, tmp_path, comm=MPI.COMM_SELF)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert [s["label"] for s in summary["steps"]] == ["rest"]
+    assert "load step 'full' failed" in summary["error"]
+    assert (tmp_path / "solution.xdmf").exists()
