@@ -38,6 +38,7 @@ Modelling choices (documented, not fitted):
 from __future__ import annotations
 
 import contextlib
+import copy
 import csv
 import importlib
 import io
@@ -445,9 +446,10 @@ def parse_scene(data: Mapping[str, Any]) -> Scene:
                          f"got {_type_name(png_value)} {png_value!r}")
     outputs.done()
     scene.done()
-    return Scene(raw=dict(data), name=name, builder=builder, geometry=geometry, model=model, degree=degree,
-                 petsc=petsc_options, regions=regions, orientation=orientation, gravity=gravity, clamp=clamp,
-                 servos=servos, steps=steps, probes=tuple(dict.fromkeys(probes_value)), xdmf=xdmf, png=tuple(png))
+    return Scene(raw=copy.deepcopy(dict(data)), name=name, builder=builder, geometry=geometry, model=model,
+                 degree=degree, petsc=petsc_options, regions=regions, orientation=orientation, gravity=gravity,
+                 clamp=clamp, servos=servos, steps=steps, probes=tuple(dict.fromkeys(probes_value)), xdmf=xdmf,
+                 png=tuple(png))
 
 
 def load_scene(source: str | os.PathLike | Mapping[str, Any]) -> Scene:
