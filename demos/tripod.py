@@ -54,7 +54,8 @@ def run_tripods(out: Path, ci: bool, comm=MPI.COMM_WORLD) -> dict:
         scene = tomllib.loads((SCENES / f"{name}.toml").read_text())
         if ci:
             scene["geometry"]["h"] = CI_H
-            scene["outputs"] = {"png": [scene["steps"][-1]["label"]]}  # one deformed picture per scene
+            # pictures (≈1 s each under load) only of case B's last step
+            scene["outputs"] = {"png": [scene["steps"][-1]["label"]] if name == "tripod_case_b" else False}
         results[name] = run_scene(scene, out / name, comm=comm)
     return results
 
