@@ -1,0 +1,332 @@
+# %% [markdown]
+# # Speed ↔ accuracy: what to pick for homogenization and for the beam
+#
+# This demo shows:
+# - the FFT homogenization of Voronoi foams at several resolutions N, discretizations and tolerances: the
+#   error of E1, E2, E3, G23, G13, G12 against a Richardson-extrapolated reference, vs the solver's wall time;
+# - the scatter of the same constants over seeds for RVEs of several sizes (n_cells);
+# - the cantilever beam of Fig. 6 (gravity) at several mesh sizes × degree {1, 2} × model {linear,
+#   corotational, svk} × Newton tolerance: the error of the tip sag against the finest P2 result of the same
+#   model, vs wall time;
+# - a Pareto plot per study and a markdown "what to pick" table: for each target error, the cheapest setting.
+#
+# Run: `python demos/speed_accuracy.py --out out/speed_accuracy [--ci | --full]`, also under `mpirun -n 2`
+# (the FFT solver is serial: the homogenization studies run on rank 0; the beam runs on all ranks).
+# Outputs (rank 0): `homogenization.csv`, `rve_size.csv`, `beam.csv`, `*_pareto.png`, `what_to_pick.md`.
+#
+# Modelling choices (documented, not tuned):
+# - reference of a foam: the finest resolution N₂ at the tightest tolerance, Richardson-extrapolated with the
+#   next finer N₁ assuming first order in the voxel size (the voxelized boundary is O(h)):
+#   `X_ref = X(N₂) + (X(N₂) − X(N₁)) / (N₂/N₁ − 1)`;
+# - error of a setting: the largest relative error over E1, E2, E3, G23, G13, G12;
+# - wall time: the FFT solver's (`r.wall_s`, six load cases) or the beam's (problem set-up + Newton), not the
+#   foam generation or meshing, which any setting pays once;
+# - the solid is isotropic E = 1, ν = 0.3 and the void has zero stiffness (CG on the rotated/spectral grid);
+# - the beam is 250 × 15 × 15 mm, isotropic E = 1 MPa, ν = 0.3, ρ = 180 kg/m³, clamped at x = 0, gravity −z
+#   (Euler–Bernoulli sag 46.0 mm, near the paper's −48 mm).
+
+# %%
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from mpi4py import MPI
+
+CONSTANTS = ("E1", "E2", "E3", "G23", "G13", "G12")
+TARGETS = (0.1, 0.03, 0.01, 0.003)
+BEAM = {"length": 0.25, "width": 0.015, "height": 0.015}
+BEAM_MATERIAL = {"E": 1.0e6, "nu": 0.3, "rho": 180.0}
+
+# Study sizes. "full" is what README's tables were measured with; "ci" runs in seconds.
+SIZES = {
+    "ci": {
+        "foams": [(0.34, 1.0)], "n_cells": 8, "resolutions": [12, 16], "reference": (16, 24),
+        "discretizations": ["rotated"], "tols": [1e-2, 1e-3], "reference_tol": 1e-3, "maxiter": 200,
+        "rve_cells": [4, 8], "rve_seeds": [1, 2], "rve_resolution": 16,
+        "beam_h": [0.0075], "degrees": [1, 2], "models": ["linear", "corotational"], "rtols": [1e-8],
+    },
+    "default": {
+        "foams": [(0.34, 1.0), (0.18, 1.0), (0.34, 0.1)], "n_cells": 8, "resolutions": [12, 16, 24],
+        "reference": (24, 32), "discretizations": ["rotated"], "tols": [1e-2, 1e-3],
+        "reference_tol": 1e-3, "maxiter": 400, "rve_cells": [8, 16], "rve_seeds": [1, 2, 3],
+        "rve_resolution": 32, "beam_h": [0.0075, 0.005, 0.00375], "degrees": [1, 2],
+        "models": ["linear", "corotational", "svk"], "rtols": [1e-4, 1e-8],
+    },
+}
+
+
+# %% [markdown]
+# ## Homogenization: resolution × discretization × tolerance
+
+# %%
+def constants_of(C: np.ndarray) -> np.ndarray:
+    """E1, E2, E3, G23, G13, G12 of a Voigt stiffness (homogenization.tensors.engineering_constants)."""
+    from homogenization.tensors import engineering_constants
+
+    eng = engineering_constants(C)
+    return np.array([eng[k] for k in CONSTANTS])
+
+
+def richardson(coarse: np.ndarray, fine: np.ndarray, ratio: float, order: float = 1.0) -> np.ndarray:
+    """First-order Richardson extrapolation ``X_f + (X_f − X_c) / (ratio^order − 1)``."""
+    return fine + (fine - coarse) / (ratio**order - 1.0)
+
+
+def relative_error(values: np.ndarray, reference: np.ndarray) -> float:
+    """``max_i |X_i − X_ref,i| / |X_ref,i|``."""
+    return float(np.max(np.abs(values - reference) / np.abs(reference)))
+
+
+def homogenization_study(size: dict) -> tuple[list[dict], list[dict]]:
+    """Rows of the resolution study and of the RVE-size study (serial: FFT on the calling rank)."""
+    from homogenization.fft import homogenize_fft
+    from homogenization.tensors import isotropic_voigt
+    from meshes.foam import VoronoiFoam
+
+    materials = [np.zeros((6, 6)), isotropic_voigt(1.0, 0.3)]
+
+    def run(img, discretization, tol):
+        r = homogenize_fft(img.astype(np.int8), materials, discretization=discretization, tol=tol,
+                           maxiter=size["maxiter"], raise_on_failure=False)
+        return constants_of(r.C), r.wall_s, int(sum(r.iterations)), bool(r.converged)
+
+    rows = []
+    for density, gamma in size["foams"]:
+        foam = VoronoiFoam(n_cells=size["n_cells"], density=density, gamma=gamma, seed=1)
+        n1, n2 = size["reference"]
+        images = {N: foam.voxelize(N) for N in sorted({*size["resolutions"], n1, n2})}
+        ref_values = [run(images[N], "rotated", size["reference_tol"])[0] for N in (n1, n2)]
+        reference = richardson(*ref_values, n2 / n1)
+        for N in size["resolutions"]:
+            for discretization in size["discretizations"]:
+                for tol in size["tols"]:
+                    values, wall, iterations, converged = run(images[N], discretization, tol)
+                    rows.append({"density": density, "gamma": gamma, "N": N, "discretization": discretization,
+                                 "tol": tol, "wall_s": wall, "iterations": iterations, "converged": converged,
+                                 "error": relative_error(values, reference),
+                                 **{k: v for k, v in zip(CONSTANTS, values)},
+                                 **{f"{k}_ref": v for k, v in zip(CONSTANTS, reference)}})
+                    print(f"foam {density} γ={gamma} N={N:3d} {discretization:8s} tol={tol:.0e}: "
+                          f"error {rows[-1]['error']:.2e}, {wall:.2f} s, {iterations} its", flush=True)
+
+    rve_rows = []
+    density, gamma = size["foams"][0]
+    for n_cells in size["rve_cells"]:
+        values = []
+        for seed in size["rve_seeds"]:
+            img = VoronoiFoam(n_cells=n_cells, density=density, gamma=gamma, seed=seed).voxelize(
+                size["rve_resolution"])
+            values.append(run(img, "rotated", 1e-3)[0])
+        values = np.array(values)
+        scatter = values.std(axis=0, ddof=1) / np.abs(values.mean(axis=0))
+        rve_rows.append({"density": density, "gamma": gamma, "n_cells": n_cells, "N": size["rve_resolution"],
+                         "seeds": len(size["rve_seeds"]), "max_scatter": float(scatter.max()),
+                         **{f"{k}_mean": v for k, v in zip(CONSTANTS, values.mean(axis=0))},
+                         **{f"{k}_scatter": v for k, v in zip(CONSTANTS, scatter)}})
+        print(f"RVE n_cells={n_cells}: seed scatter (std/mean) max {scatter.max():.3f}", flush=True)
+    return rows, rve_rows
+
+
+# %% [markdown]
+# ## Macro FEM: the Fig. 6 beam under gravity
+
+# %%
+def beam_study(comm: MPI.Comm, size: dict) -> list[dict]:
+    """Tip sag of the beam for every mesh size × degree × model × Newton rtol (collective)."""
+    from fenicsfoam.bcs import RigidMotion
+    from fenicsfoam.constitutive import MaterialField
+    from fenicsfoam.materials import Isotropic
+    from fenicsfoam.probes import TipDeflection
+    from fenicsfoam.solver import ElasticityProblem, LoadStep
+    from meshes.beam import CLAMPED_FACE, TIP_FACE, make_beam
+
+    material = Isotropic(**BEAM_MATERIAL)
+    rows = []
+    for h in size["beam_h"]:
+        beam = make_beam(comm, h=h, **BEAM)
+        field = MaterialField.uniform(beam.mesh, material)
+        for degree in size["degrees"]:
+            for model in size["models"]:
+                for rtol in size["rtols"]:
+                    t0 = time.perf_counter()
+                    problem = ElasticityProblem(
+                        beam.mesh, field, model=model, degree=degree, prefix=f"speed_{model}_",
+                        motions=[RigidMotion("clamp", beam.facet_tags.find(CLAMPED_FACE))],
+                        options={"snes_rtol": rtol})
+                    stats = problem.run([LoadStep("gravity", gravity=1.0)])
+                    sag = -TipDeflection(problem.V, beam.facet_tags, TIP_FACE, (0.0, 0.0, 1.0))(problem.u)
+                    wall = comm.allreduce(time.perf_counter() - t0, op=MPI.MAX)
+                    rows.append({"h_mm": 1e3 * h, "tets": beam.n_cells, "degree": degree, "model": model,
+                                 "snes_rtol": rtol, "dofs": problem.V.dofmap.index_map.size_global * 3,
+                                 "newton_iterations": stats[0].newton_iterations, "wall_s": wall, "sag_m": sag})
+                    if comm.rank == 0:
+                        print(f"beam h={1e3 * h:.2f} mm ({beam.n_cells} tets) P{degree} {model:12s} rtol={rtol:.0e}: "
+                              f"sag {1e3 * sag:.3f} mm, {wall:.2f} s", flush=True)
+    # reference: the finest P2 result of each model at the tightest rtol
+    for model in size["models"]:
+        candidates = [r for r in rows if r["model"] == model and r["degree"] == max(size["degrees"])]
+        finest = min(candidates, key=lambda r: (r["h_mm"], r["snes_rtol"]))
+        for r in rows:
+            if r["model"] == model:
+                r["reference_sag_m"] = finest["sag_m"]
+                r["error"] = abs(r["sag_m"] - finest["sag_m"]) / abs(finest["sag_m"])
+    return rows
+
+
+# %% [markdown]
+# ## Pareto fronts and "what to pick"
+
+# %%
+def pareto_front(rows: list[dict]) -> list[dict]:
+    """Rows not dominated in (wall_s, error): no other row is both faster and more accurate."""
+    front, best = [], np.inf
+    for r in sorted(rows, key=lambda r: (r["wall_s"], r["error"])):
+        if r["error"] < best:
+            front.append(r)
+            best = r["error"]
+    return front
+
+
+def cheapest(rows: list[dict], target: float) -> dict | None:
+    """The fastest row with error ≤ target (None if none reaches it)."""
+    ok = [r for r in rows if r["error"] <= target and r.get("converged", True)]
+    return min(ok, key=lambda r: r["wall_s"]) if ok else None
+
+
+def what_to_pick(rows: list[dict], groups: list[tuple[str, list[dict]]], describe, exclude_reference=None) -> str:
+    """Markdown table: per group and target error, the cheapest setting, its error and wall time."""
+    lines = ["| case | target error | cheapest setting | error | wall s |", "|---|---|---|---|---|"]
+    for name, group in groups:
+        if exclude_reference is not None:
+            group = [r for r in group if not exclude_reference(r)]
+        for target in TARGETS:
+            r = cheapest(group, target)
+            setting = describe(r) if r else "none of the settings run"
+            error = f"{r['error']:.1e}" if r else "–"
+            wall = f"{r['wall_s']:.2f}" if r else "–"
+            lines.append(f"| {name} | {target:g} | {setting} | {error} | {wall} |")
+    return "\n".join(lines)
+
+
+def plot_pareto(path: Path, groups: list[tuple[str, list[dict]]], title: str) -> None:
+    """Error vs wall time, one colour per group, the Pareto front as a line."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.5, 4.5))
+    for name, group in groups:
+        points = [r for r in group if r["error"] > 0]
+        line = ax.loglog([r["wall_s"] for r in points], [r["error"] for r in points], "o", alpha=0.5, label=name)
+        front = [r for r in pareto_front(points)]
+        ax.loglog([r["wall_s"] for r in front], [r["error"] for r in front], "-", color=line[0].get_color())
+    ax.set_xlabel("wall time (s)")
+    ax.set_ylabel("relative error")
+    ax.set_title(title)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
+    fig.savefig(tmp, dpi=120)
+    plt.close(fig)
+    os.replace(tmp, path)
+
+
+def write_csv(path: Path, rows: list[dict]) -> None:
+    """All rows (union of keys) to CSV, atomically."""
+    keys = list(dict.fromkeys(k for r in rows for k in r))
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=keys)
+        writer.writeheader()
+        writer.writerows(rows)
+    os.replace(tmp, path)
+
+
+def write_text(path: Path, text: str) -> None:
+    """Text file, atomically."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+# %% [markdown]
+# ## Driver and self-checks
+
+# %%
+def main(out: Path, size_name: str, comm: MPI.Comm = MPI.COMM_WORLD) -> list[str]:
+    """Run both studies; write outputs on rank 0; return the failed checks (empty when all pass)."""
+    size = SIZES[size_name]
+    if comm.rank == 0:
+        out.mkdir(parents=True, exist_ok=True)
+    failures = []
+    beam_rows = beam_study(comm, size)
+    if comm.rank == 0:
+        hom_rows, rve_rows = homogenization_study(size)
+        foam_groups = [(f"ρ={d} γ={g}", [r for r in hom_rows if (r["density"], r["gamma"]) == (d, g)])
+                       for d, g in size["foams"]]
+        beam_groups = [(f"{m} P{p}", [r for r in beam_rows if (r["model"], r["degree"]) == (m, p)])
+                       for m in size["models"] for p in size["degrees"]]
+        write_csv(out / "homogenization.csv", hom_rows)
+        write_csv(out / "rve_size.csv", rve_rows)
+        write_csv(out / "beam.csv", beam_rows)
+        plot_pareto(out / "homogenization_pareto.png", foam_groups, "FFT homogenization: error vs wall time")
+        plot_pareto(out / "beam_pareto.png", [(n, [r for r in g if r["error"] > 0]) for n, g in beam_groups],
+                    "beam tip sag: error vs finest P2, wall time")
+        finest_h = min(size["beam_h"]) * 1e3
+        beam_by_model = [(m, [r for r in beam_rows if r["model"] == m]) for m in size["models"]]
+        text = ["# What to pick", "", f"Study size `{size_name}`; errors are relative (see the demo's header).", "",
+                "## FFT homogenization (max relative error over E1, E2, E3, G23, G13, G12)", "",
+                what_to_pick(hom_rows, foam_groups,
+                             lambda r: f"N = {r['N']}, {r['discretization']}, tol {r['tol']:g}"), "",
+                "## RVE size: scatter over seeds (std/mean, max over the six constants)", "",
+                "| n_cells | N | seeds | max scatter |", "|---|---|---|---|",
+                *[f"| {r['n_cells']} | {r['N']} | {r['seeds']} | {r['max_scatter']:.3f} |" for r in rve_rows], "",
+                "## Beam tip sag (error against the finest P2 of the same model)", "",
+                what_to_pick(beam_rows, beam_by_model,
+                             lambda r: f"h = {r['h_mm']:g} mm ({r['tets']} tets), P{r['degree']}, "
+                                       f"rtol {r['snes_rtol']:g}",
+                             exclude_reference=lambda r: r["degree"] == max(size["degrees"])
+                             and r["h_mm"] == finest_h), ""]
+        models = {m: min((r for r in beam_rows if r["model"] == m), key=lambda r: (-r["degree"], r["h_mm"]))["sag_m"]
+                  for m in size["models"]}
+        text += ["Finest P2 sag per model (mm): " + ", ".join(f"{m} {1e3 * s:.3f}" for m, s in models.items()), ""]
+        write_text(out / "what_to_pick.md", "\n".join(text))
+        print("\n".join(text))
+
+        # self-checks: every value finite; refining N at the tightest tol does not increase the error;
+        # P2 at the finest mesh within 5 % of Timoshenko (linear model).
+        if not all(np.isfinite(r["error"]) for r in hom_rows + beam_rows):
+            failures.append("non-finite error")
+        for name, group in foam_groups:
+            tight = [r for r in group if r["tol"] == min(size["tols"]) and r["discretization"] == "rotated"]
+            errors = [r["error"] for r in sorted(tight, key=lambda r: r["N"])]
+            if errors[-1] > errors[0]:
+                failures.append(f"{name}: error grows with N: {errors}")
+        E, nu, rho = BEAM_MATERIAL["E"], BEAM_MATERIAL["nu"], BEAM_MATERIAL["rho"]
+        L, a = BEAM["length"], BEAM["width"]
+        q, kappa = rho * 9.81 * a * a, 10 * (1 + nu) / (12 + 11 * nu)
+        timoshenko = q * L**4 / (8 * E * a**4 / 12) + q * L**2 / (2 * kappa * E / (2 * (1 + nu)) * a * a)
+        if "linear" in models and abs(models["linear"] / timoshenko - 1) > 0.05:
+            failures.append(f"linear P2 sag {models['linear']:.4g} m vs Timoshenko {timoshenko:.4g} m")
+    return comm.bcast(failures, root=0)
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--out", type=Path, required=True, help="output directory")
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--ci", action="store_true", help="tiny, fast sizes (seconds)")
+    args = parser.parse_args()
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    failed = main(args.out, "ci" if args.ci else "default")
+    if MPI.COMM_WORLD.rank == 0:
+        print("checks:", "; ".join(failed) if failed else "all passed")
+    sys.exit(1 if failed else 0)
