@@ -165,6 +165,16 @@ def homogenization_study(size: dict) -> tuple[list[dict], list[dict]]:
 # ## Macro FEM: the Fig. 6 beam under gravity
 
 # %%
+def finest_p2(rows: list[dict], degrees: list[int]) -> dict:
+    """The macro reference: the row of the highest degree, smallest mesh size and tightest Newton rtol."""
+    return min((r for r in rows if r["degree"] == max(degrees)), key=lambda r: (r["h_mm"], r.get("snes_rtol", 0)))
+
+
+def same_mesh_and_degree(a: dict, b: dict) -> bool:
+    """Whether two macro rows share mesh size and degree (a row on the reference's mesh is no "setting")."""
+    return (a["h_mm"], a["degree"]) == (b["h_mm"], b["degree"])
+
+
 def beam_study(comm: MPI.Comm, size: dict) -> list[dict]:
     """Tip sag of the beam for every mesh size × degree × model × Newton rtol (collective)."""
     from fenicsfoam.bcs import RigidMotion
@@ -196,10 +206,8 @@ def beam_study(comm: MPI.Comm, size: dict) -> list[dict]:
                     if comm.rank == 0:
                         print(f"beam h={1e3 * h:.2f} mm ({beam.n_cells} tets) P{degree} {model:12s} rtol={rtol:.0e}: "
                               f"sag {1e3 * sag:.3f} mm, {wall:.2f} s", flush=True)
-    # reference: the finest P2 result of each model at the tightest rtol
     for model in size["models"]:
-        candidates = [r for r in rows if r["model"] == model and r["degree"] == max(size["degrees"])]
-        finest = min(candidates, key=lambda r: (r["h_mm"], r["snes_rtol"]))
+        finest = finest_p2([r for r in rows if r["model"] == model], size["degrees"])
         for r in rows:
             if r["model"] == model:
                 r["reference_sag_m"] = finest["sag_m"]
@@ -262,8 +270,7 @@ def tripod_study(comm: MPI.Comm, size: dict) -> list[dict]:
     # error: against the finest highest-degree result of the same model, largest over the top state's
     # height change from the plate's mid-plane (relative) and its rotation (relative)
     for model in size["tripod_models"]:
-        candidates = [r for r in rows if r["model"] == model and r["degree"] == max(size["tripod_degrees"])]
-        ref = min(candidates, key=lambda r: r["h_mm"])
+        ref = finest_p2([r for r in rows if r["model"] == model], size["tripod_degrees"])
         for r in rows:
             if r["model"] == model:
                 r["error"] = max(abs(r["top_height_mm"] - ref["top_height_mm"]) / abs(ref["top_height_mm"]),
@@ -291,12 +298,15 @@ def cheapest(rows: list[dict], target: float) -> dict | None:
     return min(ok, key=lambda r: r["wall_s"]) if ok else None
 
 
-def what_to_pick(rows: list[dict], groups: list[tuple[str, list[dict]]], describe, exclude_reference=None) -> str:
-    """Markdown table: per group and target error, the cheapest setting, its error and wall time."""
+def what_to_pick(groups: list[tuple[str, list[dict]]], describe, exclude=None) -> str:
+    """Markdown table: per group and target error, the cheapest setting, its error and wall time.
+
+    ``exclude(row)`` leaves rows out (the reference itself, whose error is zero by construction).
+    """
     lines = ["| case | target error | cheapest setting | error | wall s |", "|---|---|---|---|---|"]
     for name, group in groups:
-        if exclude_reference is not None:
-            group = [r for r in group if not exclude_reference(r)]
+        if exclude is not None:
+            group = [r for r in group if not exclude(r)]
         for target in TARGETS:
             r = cheapest(group, target)
             setting = describe(r) if r else "none of the settings run"
@@ -317,7 +327,7 @@ def plot_pareto(path: Path, groups: list[tuple[str, list[dict]]], title: str) ->
     for name, group in groups:
         points = [r for r in group if r["error"] > 0]
         line = ax.loglog([r["wall_s"] for r in points], [r["error"] for r in points], "o", alpha=0.5, label=name)
-        front = [r for r in pareto_front(points)]
+        front = pareto_front(points)
         ax.loglog([r["wall_s"] for r in front], [r["error"] for r in front], "-", color=line[0].get_color())
     ax.set_xlabel("wall time (s)")
     ax.set_ylabel("relative error")
@@ -353,95 +363,111 @@ def write_text(path: Path, text: str) -> None:
 # ## Driver and self-checks
 
 # %%
-def main(out: Path, size_name: str, comm: MPI.Comm = MPI.COMM_WORLD) -> list[str]:
-    """Run both studies; write outputs on rank 0; return the failed checks (empty when all pass)."""
-    size = SIZES[size_name]
-    if comm.rank == 0:
-        out.mkdir(parents=True, exist_ok=True)
+def groups_by(rows: list[dict], keys: tuple[str, ...], values: list[tuple], label) -> list[tuple[str, list[dict]]]:
+    """``[(label(*v), rows whose keys equal v) for v in values]``."""
+    return [(label(*v), [r for r in rows if tuple(r[k] for k in keys) == tuple(v)]) for v in values]
+
+
+def report(size_name: str, size: dict, hom_rows, rve_rows, beam_rows, tripod_rows) -> str:
+    """The markdown "what to pick" report (what_to_pick.md)."""
+    foam_groups = groups_by(hom_rows, ("density", "gamma"), size["foams"], lambda d, g: f"ρ={d} γ={g}")
+    beam_groups = groups_by(beam_rows, ("model",), [(m,) for m in size["models"]], str)
+    tripod_groups = groups_by(tripod_rows, ("model",), [(m,) for m in size["tripod_models"]], str)
+    beam_ref = {m: finest_p2(g, size["degrees"]) for m, g in beam_groups}
+    tripod_ref = {m: finest_p2(g, size["tripod_degrees"]) for m, g in tripod_groups}
+    return "\n".join([
+        "# What to pick", "", f"Study size `{size_name}`; errors are relative (see the demo's header).", "",
+        "## FFT homogenization (max relative error over E1, E2, E3, G23, G13, G12 ≥ 1 % of the largest)", "",
+        what_to_pick(foam_groups, lambda r: f"N = {r['N']}, {r['discretization']}, void {r['void']:g}, "
+                                            f"tol {r['tol']:g}"), "",
+        "## RVE size: scatter over seeds (std/mean, max over the six constants)", "",
+        "| n_cells | N | seeds | max scatter |", "|---|---|---|---|",
+        *[f"| {r['n_cells']} | {r['N']} | {r['seeds']} | {r['max_scatter']:.3f} |" for r in rve_rows], "",
+        "## Beam tip sag (error against the finest P2 of the same model)", "",
+        what_to_pick(beam_groups, lambda r: f"h = {r['h_mm']:g} mm ({r['tets']} tets), P{r['degree']}, "
+                                            f"rtol {r['snes_rtol']:g}",
+                     exclude=lambda r: same_mesh_and_degree(r, beam_ref[r["model"]])), "",
+        "Finest P2 sag per model (mm): " + ", ".join(f"{m} {1e3 * r['sag_m']:.3f}" for m, r in beam_ref.items()), "",
+        "## Tripod case B, top position (error: max of relative height and rotation errors)", "",
+        what_to_pick(tripod_groups, lambda r: f"h = {r['h_mm']:g} mm ({r['tets']} tets), P{r['degree']}",
+                     exclude=lambda r: same_mesh_and_degree(r, tripod_ref[r["model"]])), "",
+        "| h mm | tets | P | model | rest height mm | rest rot ° | middle height mm | middle rot ° | "
+        "top height mm | top rot ° | Newton its | wall s |", "|" + "---|" * 12,
+        *[f"| {r['h_mm']:g} | {r['tets']} | {r['degree']} | {r['model']} | {r['rest_height_mm']:.2f} | "
+          f"{r['rest_rotation_deg']:.2f} | {r['middle_height_mm']:.2f} | {r['middle_rotation_deg']:.2f} | "
+          f"{r['top_height_mm']:.2f} | {r['top_rotation_deg']:.2f} | {r['newton_iterations']} | "
+          f"{r['wall_s']:.1f} |" for r in tripod_rows], ""])
+
+
+def timoshenko_sag() -> float:
+    """Tip sag of the study's beam: q L⁴/(8 E I) + q L²/(2 κ G A), κ = 10(1+ν)/(12+11ν), q = ρ g A."""
+    E, nu, rho = BEAM_MATERIAL["E"], BEAM_MATERIAL["nu"], BEAM_MATERIAL["rho"]
+    L, a = BEAM["length"], BEAM["width"]
+    q, kappa = rho * 9.81 * a * a, 10 * (1 + nu) / (12 + 11 * nu)
+    return q * L**4 / (8 * E * a**4 / 12) + q * L**2 / (2 * kappa * E / (2 * (1 + nu)) * a * a)
+
+
+def self_checks(size: dict, hom_rows, beam_rows, tripod_rows) -> list[str]:
+    """The demo's checks; returns the failures.
+
+    Every macro error is finite; every FFT reference is finite, and every FFT error where C was positive
+    definite; for the isotropic foams the finest N beats the coarsest at the tightest tol with zero void
+    (γ = 0.1: its soft shear moduli are not in the asymptotic range, measured non-monotone, so no such check);
+    the finest P2 linear sag is within 5 % of Timoshenko.
+    """
     failures = []
+    if not all(np.isfinite(r["error"]) for r in beam_rows + tripod_rows):
+        failures.append("non-finite macro error")
+    if not all(np.isfinite(r["E2_ref"]) for r in hom_rows):
+        failures.append("a Richardson reference is not finite")
+    if not all(np.isfinite(r["error"]) for r in hom_rows if np.isfinite(r["E2"])):
+        failures.append("non-finite FFT error with a positive-definite C")
+    for density, gamma in size["foams"]:
+        tight = sorted((r for r in hom_rows if (r["density"], r["gamma"]) == (density, gamma)
+                        and r["tol"] == min(size["tols"]) and r["void"] == 0.0), key=lambda r: r["N"])
+        if gamma == 1.0 and not tight[-1]["error"] < tight[0]["error"]:
+            failures.append(f"foam {density}: N = {tight[-1]['N']} is not more accurate than N = {tight[0]['N']}")
+    linear = [r for r in beam_rows if r["model"] == "linear"]
+    if linear:
+        sag = finest_p2(linear, size["degrees"])["sag_m"]
+        if abs(sag / timoshenko_sag() - 1) > 0.05:
+            failures.append(f"linear P2 sag {sag:.4g} m vs Timoshenko {timoshenko_sag():.4g} m")
+    return failures
+
+
+def main(out: Path, size_name: str, comm: MPI.Comm = MPI.COMM_WORLD) -> list[str]:
+    """Run the studies; write outputs on rank 0; return the failed checks (empty when all pass)."""
+    size = SIZES[size_name]
     beam_rows = beam_study(comm, size)
     tripod_rows = tripod_study(comm, size)
+    failures = []
     if comm.rank == 0:
         hom_rows, rve_rows = homogenization_study(size)
-        foam_groups = [(f"ρ={d} γ={g}", [r for r in hom_rows if (r["density"], r["gamma"]) == (d, g)])
-                       for d, g in size["foams"]]
-        beam_groups = [(f"{m} P{p}", [r for r in beam_rows if (r["model"], r["degree"]) == (m, p)])
-                       for m in size["models"] for p in size["degrees"]]
-        write_csv(out / "homogenization.csv", hom_rows)
-        write_csv(out / "rve_size.csv", rve_rows)
-        write_csv(out / "beam.csv", beam_rows)
-        write_csv(out / "tripod.csv", tripod_rows)
-        plot_pareto(out / "homogenization_pareto.png", foam_groups, "FFT homogenization: error vs wall time")
-        plot_pareto(out / "beam_pareto.png", [(n, [r for r in g if r["error"] > 0]) for n, g in beam_groups],
-                    "beam tip sag: error vs finest P2, wall time")
-        tripod_groups = [(f"{m} P{p}", [r for r in tripod_rows if (r["model"], r["degree"]) == (m, p)])
-                         for m in size["tripod_models"] for p in size["tripod_degrees"]]
-        plot_pareto(out / "tripod_pareto.png", [(n, [r for r in g if r["error"] > 0]) for n, g in tripod_groups],
-                    "Tripod case B (top): error vs finest P2, wall time")
-        finest_h = min(size["beam_h"]) * 1e3
-        beam_by_model = [(m, [r for r in beam_rows if r["model"] == m]) for m in size["models"]]
-        text = ["# What to pick", "", f"Study size `{size_name}`; errors are relative (see the demo's header).", "",
-                "## FFT homogenization (max relative error over E1, E2, E3, G23, G13, G12 ≥ 1 % of the largest)", "",
-                what_to_pick(hom_rows, foam_groups, lambda r: f"N = {r['N']}, {r['discretization']}, "
-                                                              f"void {r['void']:g}, tol {r['tol']:g}"), "",
-                "## RVE size: scatter over seeds (std/mean, max over the six constants)", "",
-                "| n_cells | N | seeds | max scatter |", "|---|---|---|---|",
-                *[f"| {r['n_cells']} | {r['N']} | {r['seeds']} | {r['max_scatter']:.3f} |" for r in rve_rows], "",
-                "## Beam tip sag (error against the finest P2 of the same model)", "",
-                what_to_pick(beam_rows, beam_by_model,
-                             lambda r: f"h = {r['h_mm']:g} mm ({r['tets']} tets), P{r['degree']}, "
-                                       f"rtol {r['snes_rtol']:g}",
-                             exclude_reference=lambda r: r["degree"] == max(size["degrees"])
-                             and r["h_mm"] == finest_h), ""]
-        models = {m: min((r for r in beam_rows if r["model"] == m), key=lambda r: (-r["degree"], r["h_mm"]))["sag_m"]
-                  for m in size["models"]}
-        text += ["Finest P2 sag per model (mm): " + ", ".join(f"{m} {1e3 * s:.3f}" for m, s in models.items()), ""]
-        tripod_finest = min(tripod_h := size["tripod_h"]) * 1e3
-        text += ["## Tripod case B, top position (error: max of relative height and rotation errors)", "",
-                 what_to_pick(tripod_rows, [(m, [r for r in tripod_rows if r["model"] == m])
-                                            for m in size["tripod_models"]],
-                              lambda r: f"h = {r['h_mm']:g} mm ({r['tets']} tets), P{r['degree']}",
-                              exclude_reference=lambda r: r["degree"] == max(size["tripod_degrees"])
-                              and r["h_mm"] == tripod_finest), "",
-                 "| h mm | tets | P | model | rest height mm | rest rot ° | middle height mm | middle rot ° | "
-                 "top height mm | top rot ° | Newton its | wall s |", "|" + "---|" * 12,
-                 *[f"| {r['h_mm']:g} | {r['tets']} | {r['degree']} | {r['model']} | {r['rest_height_mm']:.2f} | "
-                   f"{r['rest_rotation_deg']:.2f} | {r['middle_height_mm']:.2f} | {r['middle_rotation_deg']:.2f} | "
-                   f"{r['top_height_mm']:.2f} | {r['top_rotation_deg']:.2f} | {r['newton_iterations']} | "
-                   f"{r['wall_s']:.1f} |" for r in tripod_rows], "",
-                 f"Tripod meshes h = {', '.join(f'{1e3 * h:g}' for h in tripod_h)} mm.", ""]
-        write_text(out / "what_to_pick.md", "\n".join(text))
-        print("\n".join(text))
-
-        # self-checks: every macro error finite; every FFT reference positive definite (finite) and every FFT
-        # error finite where C was positive definite; for the isotropic foams the finest N beats the coarsest
-        # at the tightest tol (γ = 0.1: its soft shear moduli are not in the asymptotic range, measured
-        # non-monotone, so no such check); P2 at the finest mesh within 5 % of Timoshenko (linear model).
-        if not all(np.isfinite(r["error"]) for r in beam_rows + tripod_rows):
-            failures.append("non-finite macro error")
-        if not all(np.isfinite(r["E2_ref"]) for r in hom_rows):
-            failures.append("a Richardson reference is not finite")
-        if not all(np.isfinite(r["error"]) for r in hom_rows if np.isfinite(r["E2"])):
-            failures.append("non-finite FFT error with a positive-definite C")
-        for (_, gamma), (name, group) in zip(size["foams"], foam_groups):
-            tight = [r for r in group if r["tol"] == min(size["tols"]) and r["void"] == 0.0]
-            errors = [r["error"] for r in sorted(tight, key=lambda r: r["N"])]
-            if gamma == 1.0 and not errors[-1] < errors[0]:
-                failures.append(f"{name}: the finest N is not more accurate than the coarsest: {errors}")
-        E, nu, rho = BEAM_MATERIAL["E"], BEAM_MATERIAL["nu"], BEAM_MATERIAL["rho"]
-        L, a = BEAM["length"], BEAM["width"]
-        q, kappa = rho * 9.81 * a * a, 10 * (1 + nu) / (12 + 11 * nu)
-        timoshenko = q * L**4 / (8 * E * a**4 / 12) + q * L**2 / (2 * kappa * E / (2 * (1 + nu)) * a * a)
-        if "linear" in models and abs(models["linear"] / timoshenko - 1) > 0.05:
-            failures.append(f"linear P2 sag {models['linear']:.4g} m vs Timoshenko {timoshenko:.4g} m")
+        out.mkdir(parents=True, exist_ok=True)
+        for name, rows in (("homogenization", hom_rows), ("rve_size", rve_rows), ("beam", beam_rows),
+                           ("tripod", tripod_rows)):
+            write_csv(out / f"{name}.csv", rows)
+        plot_pareto(out / "homogenization_pareto.png",
+                    groups_by(hom_rows, ("density", "gamma"), size["foams"], lambda d, g: f"ρ={d} γ={g}"),
+                    "FFT homogenization: error vs wall time")
+        for name, rows, degrees, title in (
+                ("beam", beam_rows, size["degrees"], "beam tip sag: error vs finest P2, wall time"),
+                ("tripod", tripod_rows, size["tripod_degrees"], "Tripod case B (top): error vs finest P2")):
+            models = sorted({r["model"] for r in rows})
+            groups = groups_by([r for r in rows if r["error"] > 0], ("model", "degree"),
+                               [(m, p) for m in models for p in degrees], lambda m, p: f"{m} P{p}")
+            plot_pareto(out / f"{name}_pareto.png", groups, title)
+        text = report(size_name, size, hom_rows, rve_rows, beam_rows, tripod_rows)
+        write_text(out / "what_to_pick.md", text)
+        print(text)
+        failures = self_checks(size, hom_rows, beam_rows, tripod_rows)
     return comm.bcast(failures, root=0)
 
 
 if __name__ == "__main__":
-    parser = argparse.ArgumentParser(description=__doc__)
+    parser = argparse.ArgumentParser(description="Speed ↔ accuracy study: FFT homogenization, beam, Tripod case B.")
     parser.add_argument("--out", type=Path, required=True, help="output directory")
-    group = parser.add_mutually_exclusive_group()
-    group.add_argument("--ci", action="store_true", help="tiny, fast sizes (seconds)")
+    parser.add_argument("--ci", action="store_true", help="tiny, fast sizes (seconds) instead of the default study")
     args = parser.parse_args()
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     failed = main(args.out, "ci" if args.ci else "default")
