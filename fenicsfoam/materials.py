@@ -7,8 +7,8 @@ for TI the local axis 3 is the symmetry (longitudinal, *l*) axis, ``E_t = E1 = E
 The materials are plain constants (no dolfinx here); :class:`fenicsfoam.constitutive.MaterialField` turns a
 ``{cell tag: material}`` map into the DG0 coefficient fields the UFL forms use. Every tensor operation
 (stiffness, compliance, engineering constants, closest TI fit, admissibility) is the one of
-:mod:`homogenization.tensors`. A foam material from homogenized tables (``foam_material``) is added to
-the shipped table of :mod:`homogenization.tables` (:func:`foam_material`).
+:mod:`homogenization.tensors`. Foam constants come from the shipped table of :mod:`homogenization.tables`
+(:func:`foam_material`).
 """
 
 from __future__ import annotations
