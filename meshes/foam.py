@@ -468,6 +468,16 @@ class VoronoiFoam:
         points = _wrap(np.asarray(points, dtype=float).reshape(-1, 3), 1.0)
         return self._distance.exact(points)
 
+    def closest_points(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Exact periodic distance from points (M, 3) to the strut network and the nearest network point.
+
+        Returns ``(d, q)``: ``d[m] = min_{e, n∈ℤ³} dist(p_m, segment_e + n)`` and ``q[m]`` the minimiser, taken
+        on the lattice image of the network next to ``p_m`` wrapped into ``[0,1)³`` (so ``|p̃_m - q[m]| = d[m]``
+        with ``p̃_m = p_m mod 1``; ``q`` may lie slightly outside the unit cube).
+        """
+        points = _wrap(np.asarray(points, dtype=float).reshape(-1, 3), 1.0)
+        return self._distance.closest(points)
+
     def voxelize(self, N: int) -> np.ndarray:
         """Solid indicator on an ``N³`` voxel grid: ``img[i, j, k] = dist(c_ijk, struts) ≤ radius``.
 
@@ -520,6 +530,15 @@ class VoronoiFoam:
             tmp.unlink(missing_ok=True)
         log.info("to_stl: %d triangles written to %s", len(faces), path)
         return path
+
+
+def __getattr__(name: str):
+    """Lazy re-export of the RVE mesher (``from meshes.foam import mesh_rve``) without importing dolfinx here."""
+    if name in ("mesh_rve", "RVEMesh"):
+        from meshes import rve
+
+        return getattr(rve, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def _check_int(name: str, value, minimum: int) -> None:
