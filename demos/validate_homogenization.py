@@ -6,8 +6,8 @@ the same image (Q1 with k = 1, 2, and Q2 with k = 1). Both see exactly the same 
 difference is discretization: the conforming FEM stiffness is an upper bound in energy that decreases under
 refinement, the FFT rotated scheme (one-point integrated hexahedra) is softer and increases. Prints E1, E2, E3,
 G's and the relative Frobenius difference of C to the finest FEM result (Q2; ``--ci``: Q1, k = 2), plots the
-convergence (``validation.png``) and writes ``validation.csv``. The conforming gmsh mesh of the smooth foam
-(``meshes.foam.mesh_rve``) is not available yet: the comparison with the smooth geometry is left to it.
+convergence (``validation.png``) and writes ``validation.csv``. The comparison on the smooth foam (FEM on the
+conforming ``meshes.foam.mesh_rve`` mesh) is the test ``test_conforming_foam_mesh_and_voxels_approach_each_other``.
 """
 
 import argparse
