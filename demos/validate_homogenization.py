@@ -13,8 +13,9 @@ Second part, the smooth foam: the conforming two-phase tetrahedral mesh of the s
 FFT solver on voxelizations N = 32, 48, 64 of the same foam (``--ci``: γ = 1, P1 at h = 1/12, N = 16 and 24).
 Here the two methods see different geometries, each converging to the smooth one: the voxel staircase (FFT) and
 the piecewise-linear interface, which loses O(h²) of the solid volume (FEM). Writes ``validation_smooth.png``
-and ``validation_smooth.csv`` and checks that FEM decreases and FFT increases under refinement, that they bracket,
-and (full size) that the finest pair agrees within :data:`SMOOTH_AGREEMENT`. A small case is the test
+and ``validation_smooth.csv`` and checks that P2 is softer than P1 on each mesh, that FFT lies below FEM (they
+bracket), that the gap closes with N and (full size) that the finest pair agrees within :data:`SMOOTH_AGREEMENT`
+(measured: 0.085 for γ = 1, 0.065 for γ = 0.3). A small case is the test
 ``test_conforming_foam_mesh_and_voxels_approach_each_other``.
 """
 
@@ -163,19 +164,22 @@ def smooth_main(out: Path, ci: bool) -> int:
                     ax.plot([4 * r["resolution"] for r in pts], [r[name] for r in pts], style, color=colour,
                             label=f"FEM P{degree} {name}")
         ax.set_xscale("log", base=2)
+        ax.set_yscale("log")
         ax.set_xlabel("voxels per side (FFT) / 4 × tetrahedral grid cells per side (FEM)")
         ax.set_ylabel("modulus / E_solid")
         ax.set_title(f"smooth foam {foam.n_cells} cells, {foam.density:.0%}, γ = {gamma:g}")
         ax.legend(fontsize=6)
-        # checks on the diagonal of C: FFT increases with N, FEM decreases with h and degree, and they bracket
-        d_fft = [np.diag(r["C"]) for r in fft]
-        if not all(np.all(b > a) for a, b in zip(d_fft, d_fft[1:])):
-            failures.append(f"gamma {gamma}: FFT stiffness does not increase with N")
-        d_fem = [np.diag(r["C"]) for r in fem]
-        if not all(np.all(d < d_fem[0]) for d in d_fem[1:]):
-            failures.append(f"gamma {gamma}: FEM stiffness does not decrease under refinement")
-        if not np.all(d_fft[-1] < d_fem[-1]):
+        # checks. Voxelizations (and cut meshes) of a smooth foam are not nested, so neither method is monotone in
+        # its resolution entry by entry (γ = 0.3: FFT C11 = 6.18e-3, 6.49e-3, 6.39e-3 at N = 32, 48, 64); what holds:
+        # P2 ⊃ P1 on the same mesh (energy bound), FFT below FEM (they bracket), and the gap closes with N.
+        for n in sorted({r["resolution"] for r in fem}):
+            same = {r["degree"]: np.diag(r["C"]) for r in fem if r["resolution"] == n}
+            if 2 in same and not np.all(same[2] < same[1]):
+                failures.append(f"gamma {gamma}: P2 is not softer than P1 on the mesh h = 1/{n}")
+        if not np.all(np.diag(fft[-1]["C"]) < np.diag(best_fem)):
             failures.append(f"gamma {gamma}: FFT (N = {fft[-1]['resolution']}) and FEM do not bracket")
+        if not fft[-1]["rel_diff_to_best_fem"] < fft[0]["rel_diff_to_best_fem"]:
+            failures.append(f"gamma {gamma}: the FFT-FEM gap does not close with N")
         gap = fft[-1]["rel_diff_to_best_fem"]
         if not ci and gap > SMOOTH_AGREEMENT:
             failures.append(f"gamma {gamma}: |C_fft - C_fem| / |C_fem| = {gap:.3f} > {SMOOTH_AGREEMENT}")
