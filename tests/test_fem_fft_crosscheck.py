@@ -77,7 +77,8 @@ def test_conforming_foam_mesh_and_voxels_approach_each_other():
 
     The conforming displacement FEM is stiff and softens as h → 0; the voxel FFT (staircase struts, one-point
     hexahedra) is soft and stiffens as N grows. Measured (3 cells, 30 %, C11): FEM 0.136 (h = 1/10), 0.127
-    (h = 1/14); FFT 0.096 (N = 24), 0.101 (N = 48) (this test uses N = 16, 32): the methods bracket the foam's stiffness and the gap closes
+    (h = 1/14); FFT 0.096 (N = 24), 0.101 (N = 48)
+    (this test uses N = 16, 32): the methods bracket the foam's stiffness and the gap closes
     (34 % → 23 %), while no single resolution here is converged to better than ~10 %.
     """
     from meshes.foam import mesh_rve
