@@ -9,7 +9,8 @@ declares is built (a clamp if ``loads.clamp`` is given, servo horns if ``loads.s
 Layout of a scene (SI units; servo angles in degrees)::
 
     name = "tripod_case_b"
-    [geometry]      builder = "beam" | "tripod", and the builder's parameters (h, order, sizes)
+    [geometry]      builder = "beam" | "tripod", and the builder's parameters (h, order, sizes),
+                    or builder = "file", path = "robot.msh" (gmsh; relative to the scene file's directory)
     [fem]           model = "linear" | "svk" | "corotational", degree = 1 | 2, [fem.petsc] options
     [regions.NAME]  tags = int | [ints] | "named region", material = "isotropic" | "transverse_isotropic" | "foam"
     [orientation]   kind = "uniform" | "per_tag" | "spiral" | "callable"  (only with anisotropic regions)
@@ -71,8 +72,8 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-#: Probe names and the builder they need.
-PROBES: dict[str, str] = {"tip_deflection": "beam", "center_height": "tripod", "center_rotation": "tripod"}
+#: Probe names and what they need: a facet group named "tip" (the beam's, or a mesh file's) or the Tripod.
+PROBES: dict[str, str] = {"tip_deflection": "tip", "center_height": "tripod", "center_rotation": "tripod"}
 #: Units of the probe values in summaries (SI, angles in degrees).
 PROBE_UNITS: dict[str, str] = {"tip_deflection": "m", "center_height": "m", "center_rotation": "deg"}
 MATERIAL_KEYS: dict[str, dict[str, tuple[bool, float | None]]] = {
@@ -218,7 +219,8 @@ class Scene:
     raw: Mapping[str, Any]
     name: str
     builder: str
-    geometry: Mapping[str, Any]       #: builder keyword arguments (h, order, sizes)
+    geometry: Mapping[str, Any]       #: builder keyword arguments (h, order, sizes), or the mesh file's path
+    facets: Mapping[str, tuple[int, ...]]  #: named facet groups of the mesh
     model: str
     degree: int
     petsc: Mapping[str, Any]
@@ -261,9 +263,41 @@ def _tags(value: Any, path: str, named: Mapping[str, tuple[int, ...]], what: str
                      f"got {_type_name(value)} {value!r}")
 
 
-def _parse_geometry(scene: _Table) -> tuple[str, dict[str, Any], dict, dict]:
+@dataclass(frozen=True)
+class _Geometry:
+    """The parsed ``[geometry]``: builder, its keyword arguments, named and all cell/facet tags of its mesh."""
+
+    builder: str
+    params: dict[str, Any]
+    regions: dict[str, tuple[int, ...]]
+    facets: dict[str, tuple[int, ...]]
+    cell_tags: frozenset[int]
+    facet_tags: frozenset[int]
+
+
+def _parse_mesh_file(geometry: _Table, base: Path | None) -> _Geometry:
+    """``builder = "file"``: a gmsh ``.msh`` file; its physical groups are read (not the mesh) to validate."""
+    from meshes.msh import physical_groups
+
+    path = Path(geometry.string("path", required=True))
+    geometry.done()
+    if not path.is_absolute() and base is not None:
+        path = base / path
+    if not path.is_file():
+        raise SceneError(f"geometry.path: mesh file {str(path)!r} does not exist")
+    try:
+        groups = physical_groups(path)
+    except ValueError as exc:
+        raise SceneError(f"geometry.path: {exc}") from exc
+    return _Geometry("file", {"path": path}, {n: (t,) for n, t in groups.cell_names.items()},
+                     {n: (t,) for n, t in groups.facet_names.items()}, groups.cells, groups.facets)
+
+
+def _parse_geometry(scene: _Table, base: Path | None) -> _Geometry:
     geometry = scene.table("geometry", required=True)
-    builder = geometry.string("builder", required=True, choices=("beam", "tripod"))
+    builder = geometry.string("builder", required=True, choices=("beam", "tripod", "file"))
+    if builder == "file":
+        return _parse_mesh_file(geometry, base)
     defaults, regions, facets = _builder_info(builder)
     params = {}
     for key, default in defaults.items():
@@ -276,7 +310,8 @@ def _parse_geometry(scene: _Table) -> tuple[str, dict[str, Any], dict, dict]:
         else:
             params[key] = geometry.number(key, default=default, check=lambda v: v > 0, valid="a length > 0 (m)")
     geometry.done()
-    return builder, params, regions, facets
+    return _Geometry(builder, params, regions, facets, frozenset().union(*regions.values()),
+                     frozenset().union(*facets.values()))
 
 
 def _parse_region(name: str, table: _Table, named: Mapping[str, tuple[int, ...]]) -> Region:
@@ -346,8 +381,11 @@ def _parse_step(table: _Table, servos: bool) -> Step:
     return Step(label, gravity, servo, increments)
 
 
-def parse_scene(data: Mapping[str, Any]) -> Scene:
+def parse_scene(data: Mapping[str, Any], base: str | os.PathLike | None = None) -> Scene:
     """Validate a scene given as a dict (as ``tomllib`` reads it) and return the :class:`Scene`.
+
+    ``base`` is the directory a relative ``geometry.path`` refers to (:func:`load_scene` passes the scene
+    file's directory; default: the current directory).
 
     Raises
     ------
@@ -358,7 +396,8 @@ def parse_scene(data: Mapping[str, Any]) -> Scene:
     scene = _Table(dict(data), "")
     name = scene.string("name", default="scene")
     scene.string("description", default="")
-    builder, geometry, named_regions, named_facets = _parse_geometry(scene)
+    parsed = _parse_geometry(scene, None if base is None else Path(base))
+    builder, geometry, named_regions, named_facets = parsed.builder, parsed.params, parsed.regions, parsed.facets
 
     fem = scene.table("fem") or _Table({}, "fem")
     model = fem.string("model", default="corotational", choices=("linear", "svk", "corotational"))
@@ -384,7 +423,7 @@ def parse_scene(data: Mapping[str, Any]) -> Scene:
             if tag in owner:
                 raise SceneError(f"regions.{region.name}.tags: cell tag {tag} is already in region {owner[tag]!r}")
             owner[tag] = region.name
-    all_tags = set().union(*named_regions.values())
+    all_tags = set(parsed.cell_tags)
     unknown = sorted(set(owner) - all_tags)
     if unknown:
         raise SceneError(f"regions.{owner[unknown[0]]}.tags: cell tag {unknown[0]} is not a tag of the {builder} "
@@ -403,11 +442,11 @@ def parse_scene(data: Mapping[str, Any]) -> Scene:
     clamp = () if clamp_value is None else _tags(clamp_value, loads.key("clamp"), named_facets, "facet group")
     servos = loads.boolean("servos", False)
     loads.done()
-    if clamp and builder != "beam":
-        raise SceneError(f"loads.clamp: the {builder} builder has no facet tags to clamp")
+    if clamp and not parsed.facet_tags:
+        raise SceneError(f"loads.clamp: the {builder} mesh has no facet tags to clamp")
     if servos and builder != "tripod":
         raise SceneError(f"loads.servos: servo horns need the tripod builder, not {builder!r}")
-    all_facets = set().union(*named_facets.values()) if named_facets else set()
+    all_facets = set(parsed.facet_tags)
     if set(clamp) - all_facets:
         raise SceneError(f"loads.clamp: facet tags {sorted(set(clamp) - all_facets)} are not facet tags of the "
                          f"{builder} mesh (facet tags: {sorted(all_facets)})")
@@ -429,8 +468,12 @@ def parse_scene(data: Mapping[str, Any]) -> Scene:
     for probe in probes_value:
         if probe not in PROBES:
             raise SceneError(f"probes: unknown probe {probe!r}; valid: {', '.join(PROBES)}")
-        if PROBES[probe] != builder:
-            raise SceneError(f"probes: {probe!r} needs the {PROBES[probe]} builder, the scene uses {builder!r}")
+        if PROBES[probe] == "tip" and "tip" not in named_facets:
+            raise SceneError(f"probes: {probe!r} needs a facet group named 'tip' (the beam builder's, or a "
+                             f"physical surface named tip in a mesh file); the {builder} mesh has "
+                             f"{sorted(named_facets) or 'none'}")
+        if PROBES[probe] == "tripod" and builder != "tripod":
+            raise SceneError(f"probes: {probe!r} needs the tripod builder, the scene uses {builder!r}")
     if "tip_deflection" in probes_value and gravity is None:
         raise SceneError("probes: 'tip_deflection' is measured along gravity; give loads.gravity")
 
@@ -446,7 +489,8 @@ def parse_scene(data: Mapping[str, Any]) -> Scene:
                          f"got {_type_name(png_value)} {png_value!r}")
     outputs.done()
     scene.done()
-    return Scene(raw=copy.deepcopy(dict(data)), name=name, builder=builder, geometry=geometry, model=model,
+    return Scene(raw=copy.deepcopy(dict(data)), name=name, builder=builder, geometry=geometry,
+                 facets=named_facets, model=model,
                  degree=degree, petsc=petsc_options, regions=regions, orientation=orientation, gravity=gravity,
                  clamp=clamp, servos=servos, steps=steps, probes=tuple(dict.fromkeys(probes_value)), xdmf=xdmf,
                  png=tuple(png))
@@ -465,7 +509,7 @@ def load_scene(source: str | os.PathLike | Mapping[str, Any]) -> Scene:
     except OSError as exc:
         raise SceneError(f"cannot read scene {path}: {exc}") from exc
     try:
-        return parse_scene(data)
+        return parse_scene(data, base=path.parent)
     except SceneError as exc:
         raise SceneError(f"{path}: {exc}") from exc
 
@@ -583,8 +627,11 @@ def _build(scene: Scene, comm) -> _Model:
     resolved = {region.name: _resolve_material(region) for region in scene.regions}  # before meshing: fail fast
     _check_orientation(scene, resolved)
     params = dict(scene.geometry)
-    if scene.builder == "beam":
-        from meshes.beam import TIP_FACE, make_beam
+    if scene.builder == "file":
+        from meshes.msh import read_msh
+        tagged = read_msh(comm, params["path"])
+    elif scene.builder == "beam":
+        from meshes.beam import make_beam
         tagged = make_beam(comm, **params)
     else:
         from meshes.tripod import ARM_END, RING, TripodGeometry, make_tripod
@@ -612,7 +659,8 @@ def _build(scene: Scene, comm) -> _Model:
                                 gravity=gravity, motions=motions, prefix=PETSC_PREFIX, options=dict(scene.petsc))
     V = problem.V
     builders = {
-        "tip_deflection": lambda: TipDeflection(V, tagged.facet_tags, TIP_FACE, -np.asarray(gravity)),
+        "tip_deflection": lambda: TipDeflection(V, tagged.facet_tags, scene.facets["tip"][0],
+                                                -np.asarray(gravity)),
         "center_height": lambda: CenterHeight(V, cell_tags, RING),
         "center_rotation": lambda: CenterRotation(V, cell_tags, RING),
     }

@@ -29,6 +29,7 @@ __all__ = [
     "TIP_FACE",
     "BeamMesh",
     "TaggedMesh",
+    "distribute_gmsh",
     "make_beam",
     "mesh_from_gmsh",
 ]
@@ -113,6 +114,25 @@ def mesh_from_gmsh(
     The builder owns the gmsh session: it calls ``gmsh.initialize()`` and ``gmsh.finalize()``.
 
     """
+    def build_and_mesh():
+        build()
+        gmsh.model.mesh.setSize(gmsh.model.getEntities(0), h)
+        gmsh.option.setNumber("Mesh.MeshSizeMax", h)
+        gmsh.model.mesh.generate(3)
+        if order > 1:
+            gmsh.model.mesh.setOrder(order)
+
+    return distribute_gmsh(comm, name, build_and_mesh)
+
+
+def distribute_gmsh(
+    comm: MPI.Comm, name: str, build: Callable[[], None]
+) -> tuple[dolfinx.mesh.Mesh, dolfinx.mesh.MeshTagsMetaClass, dolfinx.mesh.MeshTagsMetaClass, float]:
+    """Run ``build`` in a gmsh session on rank 0 (it must leave a meshed model) and distribute the mesh.
+
+    A failure of ``build`` is re-raised on rank 0 and reported on the other ranks; the session is always
+    finalized. Returns ``model_to_mesh(gmsh.model, comm, 0, gdim=3)`` and the wall time (max over ranks).
+    """
     start = time.perf_counter()
     failure = None
     if comm.rank == 0:
@@ -121,17 +141,12 @@ def mesh_from_gmsh(
             gmsh.option.setNumber("General.Terminal", 0)
             gmsh.model.add(name)
             build()
-            gmsh.model.mesh.setSize(gmsh.model.getEntities(0), h)
-            gmsh.option.setNumber("Mesh.MeshSizeMax", h)
-            gmsh.model.mesh.generate(3)
-            if order > 1:
-                gmsh.model.mesh.setOrder(order)
-            logger.info("gmsh meshed %r with h = %g m in %.2f s", name, h, time.perf_counter() - start)
+            logger.info("gmsh built %r in %.2f s", name, time.perf_counter() - start)
         except Exception as exc:  # re-raised below on rank 0, after telling the other ranks
             failure = exc
     try:
         if comm.bcast(failure is not None, root=0):
-            raise failure if comm.rank == 0 else RuntimeError(f"gmsh failed to mesh {name!r} on rank 0")
+            raise failure if comm.rank == 0 else RuntimeError(f"gmsh failed to build {name!r} on rank 0")
         mesh, cell_tags, facet_tags = dolfinx.io.gmshio.model_to_mesh(gmsh.model, comm, 0, gdim=3)
     finally:
         if comm.rank == 0:
