@@ -51,12 +51,16 @@ Performance
 -----------
 One pair of pyfftw plans (``FFTW_MEASURE``, multithreaded, batched over the six components) per call; FFTW
 keeps its wisdom for the process, so planning a shape again is immediate. All ``N³`` work arrays are allocated
-once for all load cases; the iterations use in-place ufuncs on blocks of planes (sized to stay in cache) that
-run on ``threads`` threads, and the constitutive update loops over the phases (one 6×6 product per phase and
-block), never over voxels. Keep OpenBLAS at one thread (``OPENBLAS_NUM_THREADS=1`` before importing numpy):
-its threads spin against FFTW's. The CG iterate itself is not stored (unless the fields are asked for): ``⟨σ⟩``
-is accumulated from the averages of ``C : p_k`` (read from the zero frequency of the transform that is needed
-anyway), and ``⟨p, G[C:p]⟩ = ⟨p, C:p⟩`` (``p`` is in the range of ``G``) is summed during the constitutive pass.
+once for all load cases. Between the transforms, each iteration makes three passes over memory: the
+constitutive update (with the CG direction update and ``⟨p, C:p⟩`` fused in), the Fourier kernel ``G`` and the
+residual update with its norm. They are fused C kernels (``_kernels.c``, compiled once per machine by
+:mod:`homogenization._native`, called through cffi on blocks of planes on ``threads`` threads); without a C
+compiler the same algebra runs as numpy ufuncs on cache-sized blocks (several passes each, the constitutive
+update one 6×6 product per phase and block, never a loop over voxels). Keep OpenBLAS at one thread
+(``OPENBLAS_NUM_THREADS=1`` before importing numpy): its threads spin against FFTW's. The CG iterate itself is
+not stored (unless the fields are asked for): ``⟨σ⟩`` is accumulated from the averages of ``C : p_k`` (read from
+the zero frequency of the transform that is needed anyway), and ``⟨p, G[C:p]⟩ = ⟨p, C:p⟩`` (``p`` is in the
+range of ``G``) is summed during the constitutive pass.
 """
 
 from __future__ import annotations
@@ -72,6 +76,7 @@ from dataclasses import dataclass
 import numpy as np
 import pyfftw
 
+from homogenization import _native
 from homogenization.result import HomogenizationResult
 from homogenization.tensors import check_stiffness, closest_isotropic, mandel_to_voigt, voigt_to_mandel
 
@@ -244,9 +249,13 @@ class _Workspace:
         self.plan_s = time.perf_counter() - t0
         self.fft_s = 0.0
         self.fft_calls = 0
-        # n repeated along the last axis, so that the Fourier kernel runs on float64 views of the complex
-        # spectrum ((re, im) pairs) without complex × real casting.
-        self.n2 = np.repeat(wave_directions(self.shape, discretization), 2, axis=-1)
+        self.native = _native.load()
+        if self.native is not None:
+            self.n = wave_directions(self.shape, discretization)
+        else:
+            # n repeated along the last axis, so that the numpy Fourier kernel runs on float64 views of the
+            # complex spectrum ((re, im) pairs) without complex × real casting.
+            self.n2 = np.repeat(wave_directions(self.shape, discretization), 2, axis=-1)
         self.vectors = [np.empty((6, N1, N2, N3)) for _ in range(n_vectors)]
         # Constitutive update σ = C_b ε + Σ_{p≠b} m_p (C_p − C_b) ε, b = the most frequent phase (no mask needed);
         # the matrices map Mandel strain to tensor stress components.
@@ -254,9 +263,16 @@ class _Workspace:
         self.fractions = {int(p): c / self.size for p, c in zip(ids, counts)}
         base = int(ids[np.argmax(counts)])
         to_tensor = {p: stiffnesses[int(p)] / _MANDEL[:, None] for p in ids}
-        self.base = to_tensor[base] if np.any(to_tensor[base]) else None
-        self.jumps = [(to_tensor[p] - (0.0 if self.base is None else self.base), (phases == p).astype(np.float64))
-                      for p in ids if p != base]
+        if self.native is not None:  # the C kernel reads the phase id and its matrix voxel by voxel
+            self.phase = np.ascontiguousarray(phases, dtype=np.int32)
+            self.tables = np.zeros((int(ids.max()) + 1, 6, 6))
+            for p in ids:
+                self.tables[p] = to_tensor[p]
+            self.base, self.jumps = None, []
+        else:
+            self.base = to_tensor[base] if np.any(to_tensor[base]) else None
+            self.jumps = [(to_tensor[p] - (0.0 if self.base is None else self.base),
+                           (phases == p).astype(np.float64)) for p in ids if p != base]
         # Blocks of whole planes along axis 1, split into one contiguous run per thread.
         per_block = max(1, min(_BLOCK_VOXELS // (N2 * N3), -(-N1 // threads)))
         blocks = [(i, min(i + per_block, N1)) for i in range(0, N1, per_block)]
@@ -272,9 +288,14 @@ class _Workspace:
     @property
     def nbytes(self) -> int:
         """Bytes held by the ``N³`` work arrays (FFT buffers, wave vectors, vectors, masks, block scratch)."""
-        arrays = [self.real, self.hat, self.n2, *self.vectors, *(m for _, m in self.jumps)]
+        arrays = [self.real, self.hat, *self.vectors, *(m for _, m in self.jumps)]
+        arrays += [self.n, self.phase, self.tables] if self.native is not None else [self.n2]
         arrays += [a for s in self.scratch for a in s.values()]
         return int(sum(a.nbytes for a in arrays))
+
+    def _pointer(self, array: np.ndarray, offset: int = 0, ctype: str = "double *"):
+        """Pointer (cffi) to ``array``'s element ``offset`` (``array`` is C-contiguous)."""
+        return self.native[0].cast(ctype, array.ctypes.data) + offset
 
     def close(self):
         """Stop the worker threads."""
@@ -319,6 +340,16 @@ class _Workspace:
         """
         N2N3 = self.shape[1] * self.shape[2]
         weights = _MANDEL  # ⟨ε_M, σ_M⟩ = Σ_c √2^[c shear] ε_M[c] σ_t[c]
+        if self.native is not None:
+            lib, ptr = self.native[1], self._pointer
+            r, beta = update if update is not None else (strain, 0.0)
+
+            def native(i0, i1, _):
+                o = i0 * N2N3
+                return lib.ff_constitutive((i1 - i0) * N2N3, self.size, ptr(strain, o), ptr(r, o), beta,
+                                           update is not None, ptr(self.phase, o, "int32_t *"),
+                                           len(self.tables), ptr(self.tables), ptr(weights), ptr(out, o))
+            return self.run(native)
 
         def kernel(i0, i1, scratch):
             if update is not None:
@@ -355,6 +386,18 @@ class _Workspace:
         With ``residual=True`` also returns ``Σ_x |G[τ](x)|² = N⁻³ Σ_ξ (2|τ̂n|² − |n·τ̂n|²)`` over the full
         spectrum (Parseval).
         """
+        if self.native is not None:
+            lib, ptr = self.native[1], self._pointer
+            N2, H = self.shape[1], self.shape[2] // 2 + 1
+            stride, nstride = 2 * self.shape[0] * N2 * H, self.shape[0] * N2 * H
+            nyquist = self.shape[2] % 2 == 0 and H > 1
+
+            def native(i0, i1, _):
+                o = i0 * N2 * H
+                return lib.ff_green((i1 - i0) * N2 * H, stride, ptr(self.hat, 2 * o), nstride, ptr(self.n, o),
+                                    c, residual, H, nyquist)
+            total = self.run(native)
+            return total / self.size if residual else 0.0
         hat, n = self.hat.view(np.float64), self.n2  # (re, im) pairs; n is real, so it acts on both alike
         single = self.single_planes
 
@@ -404,6 +447,14 @@ class _Workspace:
     def axpy(self, alpha: np.ndarray, x: np.ndarray, y: np.ndarray, norm: bool = False) -> float:
         """``y_c ← y_c + α_c x_c`` (one coefficient per component); returns ``Σ y·y`` if ``norm``, else 0."""
         N2N3 = self.shape[1] * self.shape[2]
+        if self.native is not None:
+            lib, ptr = self.native[1], self._pointer
+            coefficients = np.ascontiguousarray(alpha, dtype=float)
+
+            def native(i0, i1, _):
+                o = i0 * N2N3
+                return lib.ff_axpy((i1 - i0) * N2N3, self.size, ptr(coefficients), ptr(x, o), ptr(y, o), norm)
+            return self.run(native)
         alpha = np.asarray(alpha, dtype=float).reshape(6, 1, 1, 1)
 
         def kernel(i0, i1, scratch):
