@@ -89,48 +89,62 @@ double ff_green(int64_t n, int64_t stride, double *hat, int64_t nstride, const d
                 int residual, int64_t h, int nyquist)
 {
     double total = 0.0;
-    double (*T)[2 * TILE] = malloc(6 * 2 * TILE * sizeof(double)), (*q)[TILE] = malloc(3 * TILE * sizeof(double));
+    /* the tile's real and imaginary parts, de-interleaved so that the loop below runs at unit stride */
+    double (*restrict re)[TILE] = malloc(6 * TILE * sizeof(double));
+    double (*restrict im)[TILE] = malloc(6 * TILE * sizeof(double));
+    double (*restrict q)[TILE] = malloc(4 * TILE * sizeof(double)); /* n0, n1, n2, Parseval weight */
     for (int64_t k0 = 0; k0 < n; k0 += TILE) {
         const int64_t m = (n - k0 < TILE) ? n - k0 : TILE;
         for (int a = 0; a < 6; ++a) {
             const double *src = hat + a * stride + 2 * k0;
-            for (int64_t i = 0; i < 2 * m; ++i)
-                T[a][i] = src[i];
+            for (int64_t k = 0; k < m; ++k) {
+                re[a][k] = src[2 * k];
+                im[a][k] = src[2 * k + 1];
+            }
         }
         for (int a = 0; a < 3; ++a) {
             const double *src = nvec + a * nstride + k0;
-            for (int64_t i = 0; i < m; ++i)
-                q[a][i] = src[i];
+            for (int64_t k = 0; k < m; ++k)
+                q[a][k] = src[k];
         }
-#pragma omp simd reduction(+ : total)
-        for (int64_t i = 0; i < 2 * m; ++i) {
-            const int64_t k = i >> 1;
-            const double n0 = q[0][k], n1 = q[1][k], n2 = q[2][k];
-            const double v0 = T[0][i] * n0 + T[5][i] * n1 + T[4][i] * n2;
-            const double v1 = T[5][i] * n0 + T[1][i] * n1 + T[3][i] * n2;
-            const double v2 = T[4][i] * n0 + T[3][i] * n1 + T[2][i] * n2;
-            const double sv = v0 * n0 + v1 * n1 + v2 * n2;
-            if (residual) {
+        if (residual)
+            for (int64_t k = 0; k < m; ++k) {
                 const int64_t line = (k0 + k) % h;
-                const double weight = (line == 0 || (nyquist && line == h - 1)) ? 1.0 : 2.0;
-                total += weight * (2.0 * (v0 * v0 + v1 * v1 + v2 * v2) - sv * sv);
+                q[3][k] = (line == 0 || (nyquist && line == h - 1)) ? 1.0 : 2.0;
             }
-            const double cs = c * sv;
-            const double w0 = v0 - cs * n0, w1 = v1 - cs * n1, w2 = v2 - cs * n2;
-            T[0][i] = n0 * w0;
-            T[1][i] = n1 * w1;
-            T[2][i] = n2 * w2;
-            T[3][i] = n1 * w2 + n2 * w1;
-            T[4][i] = n0 * w2 + n2 * w0;
-            T[5][i] = n0 * w1 + n1 * w0;
+        for (int part = 0; part < 2; ++part) {
+            double (*restrict T)[TILE] = part ? im : re;
+            double sum = 0.0;
+#pragma omp simd reduction(+ : sum)
+            for (int64_t k = 0; k < m; ++k) {
+                const double n0 = q[0][k], n1 = q[1][k], n2 = q[2][k];
+                const double v0 = T[0][k] * n0 + T[5][k] * n1 + T[4][k] * n2;
+                const double v1 = T[5][k] * n0 + T[1][k] * n1 + T[3][k] * n2;
+                const double v2 = T[4][k] * n0 + T[3][k] * n1 + T[2][k] * n2;
+                const double sv = v0 * n0 + v1 * n1 + v2 * n2;
+                if (residual)
+                    sum += q[3][k] * (2.0 * (v0 * v0 + v1 * v1 + v2 * v2) - sv * sv);
+                const double cs = c * sv;
+                const double w0 = v0 - cs * n0, w1 = v1 - cs * n1, w2 = v2 - cs * n2;
+                T[0][k] = n0 * w0;
+                T[1][k] = n1 * w1;
+                T[2][k] = n2 * w2;
+                T[3][k] = n1 * w2 + n2 * w1;
+                T[4][k] = n0 * w2 + n2 * w0;
+                T[5][k] = n0 * w1 + n1 * w0;
+            }
+            total += sum;
         }
         for (int a = 0; a < 6; ++a) {
             double *dst = hat + a * stride + 2 * k0;
-            for (int64_t i = 0; i < 2 * m; ++i)
-                dst[i] = T[a][i];
+            for (int64_t k = 0; k < m; ++k) {
+                dst[2 * k] = re[a][k];
+                dst[2 * k + 1] = im[a][k];
+            }
         }
     }
-    free(T);
+    free(re);
+    free(im);
     free(q);
     return total;
 }
