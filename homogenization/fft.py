@@ -294,7 +294,9 @@ class _Workspace:
         return int(sum(a.nbytes for a in arrays))
 
     def _pointer(self, array: np.ndarray, offset: int = 0, ctype: str = "double *"):
-        """Pointer (cffi) to ``array``'s element ``offset`` (``array`` is C-contiguous)."""
+        """Pointer (cffi) to ``array``'s element ``offset``; the kernels index it as a C-contiguous array."""
+        if not array.flags.c_contiguous:
+            raise ValueError("the FFT solver's C kernels need C-contiguous work arrays")
         return self.native[0].cast(ctype, array.ctypes.data) + offset
 
     def close(self):
