@@ -1,4 +1,5 @@
-"""meshes.tripod: exact plate and region volumes, tag placement, the paper-size preset, servo kinematics."""
+"""meshes.tripod: exact plate and region volumes, tag placement, the paper-size preset, D3 invariance of the mesh,
+servo kinematics."""
 
 import math
 
@@ -7,8 +8,19 @@ import numpy as np
 import pytest
 import ufl
 from mpi4py import MPI
+from scipy.spatial import cKDTree
 
-from meshes.tripod import ARM, ARM_END, CENTRE, PAPER_H, REGIONS, RING, TripodGeometry, make_tripod
+from meshes.tripod import (
+    ARM,
+    ARM_END,
+    CENTRE,
+    PAPER_H,
+    REGIONS,
+    RING,
+    TripodGeometry,
+    make_tripod,
+    symmetry_group,
+)
 
 GEOMETRY = TripodGeometry()
 
@@ -72,13 +84,84 @@ def test_region_volumes_ring_and_arm_ends_are_exact_up_to_chords(tripod_p2):
 
 @pytest.mark.mpi
 def test_all_tags_present_and_the_preset_gives_about_2684_tetrahedra(tripod):
+    """PAPER_H gives 2694 tetrahedra; the mesh is six copies of the wedge's, so the count is a multiple of 6."""
     comm = tripod.mesh.comm
     present = set().union(*comm.allgather(set(np.unique(tripod.cell_tags.values).tolist())))
     assert present == set(REGIONS["plate"])
     assert abs(tripod.n_cells - 2684) <= 0.15 * 2684
+    assert tripod.n_cells % 6 == 0
     n_local = tripod.mesh.topology.index_map(3).size_local
     tagged = np.unique(tripod.region_cells("plate"))
     assert np.count_nonzero(tagged < n_local) == n_local  # every owned cell carries a tag
+
+
+def test_symmetry_group_is_the_dihedral_group_of_the_plate():
+    group = symmetry_group()
+    for g in group:
+        np.testing.assert_allclose(g @ g.T, np.eye(3), atol=1e-15)
+        np.testing.assert_allclose(g[2], [0, 0, 1], atol=0)  # keeps e_z: no flip of the plate
+    # Closed under composition: each product is one of the six, and the six are distinct.
+    products = np.einsum("aij,bjk->abik", group, group).reshape(-1, 1, 3, 3)
+    assert np.all(np.sum(np.abs(products - group).sum(axis=(2, 3)) < 1e-14, axis=1) == 1)
+    assert np.linalg.det(group).round(14).tolist() == [1, 1, 1, -1, -1, -1]
+    # Every element permutes the arm directions, so it maps the plate onto itself.
+    e = GEOMETRY.arm_directions()
+    for g in group:
+        match = np.abs(e @ g.T @ e.T - 1) < 1e-14  # match[i, j]: g e_i = e_j
+        assert np.all(match.sum(axis=0) == 1) and np.all(match.sum(axis=1) == 1)
+
+
+def gathered_mesh(tripod):
+    """Every rank: all owned geometry nodes (N, 3), owned cells' node coordinates (n, nodes per cell, 3), tags."""
+    comm, mesh = tripod.mesh.comm, tripod.mesh
+    n_cells = mesh.topology.index_map(3).size_local
+    x = mesh.geometry.x
+    cells = mesh.geometry.dofmap.array.reshape(-1, mesh.geometry.dofmap.links(0).size)[:n_cells]
+    tags = np.full(n_cells, -1)
+    owned = tripod.cell_tags.indices < n_cells
+    tags[tripod.cell_tags.indices[owned]] = tripod.cell_tags.values[owned]
+    nodes = np.concatenate(comm.allgather(x[: mesh.geometry.index_map().size_local]))
+    return nodes, np.concatenate(comm.allgather(x[cells])), np.concatenate(comm.allgather(tags))
+
+
+def image_tags(g, tags):
+    """Cell tags after the map g: arm i's tags become those of the arm g e_i points along."""
+    e = GEOMETRY.arm_directions()
+    arm_of = [int(np.argmax(e @ (g @ e[i]))) for i in range(3)]
+    mapping = {RING: RING, CENTRE: CENTRE} | {ARM[i]: ARM[arm_of[i]] for i in range(3)}
+    mapping |= {ARM_END[i]: ARM_END[arm_of[i]] for i in range(3)}
+    return np.vectorize(mapping.get)(tags)
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("order", [1, 2])
+def test_nodes_cells_and_tags_are_invariant_under_the_symmetry_group(tripod, tripod_p2, order):
+    """Each of the six maps sends the node set onto itself (to 1e-12 of the plate's size) and the cell set onto
+    itself, each cell onto a cell with the image tag: the mesh is D3-invariant, not only the geometry."""
+    nodes, cell_x, tags = gathered_mesh(tripod if order == 1 else tripod_p2)
+    assert np.all(tags > 0)
+    tol = 1e-12 * GEOMETRY.arm_length
+    tree = cKDTree(nodes)
+    distance, _ = tree.query(nodes, k=2)
+    assert distance[:, 1].min() > 1e3 * tol  # nodes are distinct, so matching to tol is unambiguous
+
+    def cell_rows(points):
+        distance, index = tree.query(points.reshape(-1, 3))
+        assert distance.max() <= tol
+        return np.sort(index.reshape(len(points), -1), axis=1)
+
+    def canonical(rows, values):
+        order = np.lexsort(rows.T[::-1])
+        return rows[order], values[order]
+
+    reference = canonical(cell_rows(cell_x), tags)
+    assert len(np.unique(reference[0], axis=0)) == len(tags)
+    for g in symmetry_group():
+        distance, index = tree.query(nodes @ g.T)
+        assert distance.max() <= tol and np.unique(index).size == len(nodes)  # a permutation of the nodes
+        image = canonical(cell_rows(cell_x @ g.T), image_tags(g, tags))
+        np.testing.assert_array_equal(image[0], reference[0])
+        np.testing.assert_array_equal(image[1], reference[1])
 
 
 def cell_node_coordinates(tripod, tags):
