@@ -705,6 +705,8 @@ class SceneResult:
     wall_s: float = 0.0
     materials: dict[str, dict] = field(default_factory=dict)
     error: str | None = None
+    #: when a step failed: its label, the load factor reached and the strong-ellipticity check there
+    failure: dict[str, Any] | None = None
     out_dir: Path | None = None
 
     def probe(self, name: str, relative_to: str | None = None) -> dict[str, float]:
@@ -718,7 +720,8 @@ class SceneResult:
         return {"scene": dict(self.scene.raw), "steps": [s.to_dict() for s in self.steps], "wall_s": self.wall_s,
                 "n_cells": self.n_cells, "n_dofs": self.n_dofs, "n_ranks": self.n_ranks,
                 "probe_units": {p: PROBE_UNITS[p] for p in self.scene.probes}, "materials": self.materials,
-                "model": self.scene.model, "degree": self.scene.degree, "error": self.error}
+                "model": self.scene.model, "degree": self.scene.degree, "error": self.error,
+                "failure": self.failure}
 
     def table(self) -> str:
         """Probes per step (lengths in mm, angles in degrees), Newton iterations and wall time."""
@@ -848,6 +851,8 @@ def run_scene(source: str | os.PathLike | Mapping[str, Any] | Scene, out_dir: st
             except ConvergenceError as exc:
                 failure = exc
                 result.error = str(exc)
+                result.failure = {"step": exc.step, "load_factor": exc.load_factor, "reason": exc.reason,
+                                  "ellipticity": None if exc.ellipticity is None else exc.ellipticity.to_dict()}
                 break
             result.steps.append(StepResult(step.label, {n: float(p(problem.u)) for n, p in model.probes.items()},
                                            stats.newton_iterations, stats.increments, stats.cutbacks,

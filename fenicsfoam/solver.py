@@ -52,6 +52,7 @@ from fenicsfoam.constitutive import (
     deformation_gradient,
     first_piola_kirchhoff,
 )
+from fenicsfoam.stability import EllipticityCheck, ellipticity_margin
 
 __all__ = ["ConvergenceError", "ElasticityProblem", "LoadState", "LoadStep", "StepStats", "rigid_body_modes"]
 
@@ -73,13 +74,25 @@ class ConvergenceError(RuntimeError):
     reason
         Why the last attempt failed: the SNES converged reason (e.g. ``DIVERGED_LINE_SEARCH``) or
         ``inverted element (min det F = ...)``.
+    ellipticity
+        The strong-ellipticity check of the last converged state
+        (:class:`fenicsfoam.stability.EllipticityCheck`), or ``None``. When ``ellipticity.lost``, the
+        failure is a material instability (shear or kink bands, a mesh-dependent limit point), which no
+        solver setting removes; the message says so.
 
     """
 
-    def __init__(self, step: str, load_factor: float, reason: str, cutbacks: int):
+    def __init__(self, step: str, load_factor: float, reason: str, cutbacks: int,
+                 ellipticity: EllipticityCheck | None = None):
         self.step, self.load_factor, self.reason, self.cutbacks = step, load_factor, reason, cutbacks
-        super().__init__(f"load step {step!r} failed at load factor {load_factor:.6g} of the step after "
-                         f"{cutbacks} cut-backs: {reason}; the last converged state is kept")
+        self.ellipticity = ellipticity
+        message = (f"load step {step!r} failed at load factor {load_factor:.6g} of the step after "
+                   f"{cutbacks} cut-backs: {reason}; the last converged state is kept")
+        if ellipticity is not None:
+            message += f"; at that state: {ellipticity}"
+            if ellipticity.lost:
+                message += " (a material instability of the constitutive model, not a solver failure)"
+        super().__init__(message)
 
 
 @dataclass(frozen=True)
@@ -236,6 +249,7 @@ class ElasticityProblem:
         if not prefix or not prefix.endswith("_"):
             raise ValueError(f"the options prefix must be non-empty and end with '_', got {prefix!r}")
         self.model, self.degree, self.max_cutbacks = model, degree, max_cutbacks
+        self.material, self.orientation = material, orientation
         self.quadrature_degree = 2 * (degree - 1) if quadrature_degree is None else quadrature_degree
         self.V = fem.VectorFunctionSpace(mesh, ("CG", degree))
         self.u = fem.Function(self.V, name="displacement")
@@ -502,7 +516,7 @@ class ElasticityProblem:
             if ds < ds_min * (1 - 1e-12):
                 self.loads = start.towards(target, s)
                 self._apply_loads(self.loads)
-                raise ConvergenceError(step.label, s, reason, stats.cutbacks)
+                raise ConvergenceError(step.label, s, reason, stats.cutbacks, self._diagnose())
         self.loads = target
         self._apply_loads(target)
         if self.rotation is not None:
@@ -510,6 +524,10 @@ class ElasticityProblem:
         stats.min_det_F = self.min_det_F()
         stats.wall_s = time.perf_counter() - t0
         return stats
+
+    def _diagnose(self) -> EllipticityCheck:
+        """Strong-ellipticity check of the current (last converged) state; evaluated only when a step fails."""
+        return ellipticity_margin(self)
 
     def run(self, steps: Sequence[LoadStep]) -> list[StepStats]:
         """Solve the load steps in order; returns the statistics of each."""
