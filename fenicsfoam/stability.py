@@ -63,8 +63,10 @@ def hemisphere_directions(count: int) -> np.ndarray:
 
 
 def _acoustic_tensors(A: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """``sym Q(n)`` (p, d, 3, 3) for tangents A (p, 9, 9) with rows ``ik`` and columns ``jl``, normals n (d, 3)
-    shared by every point or (p, d, 3) per point."""
+    """``sym Q(n)`` (p, d, 3, 3) for tangents A (p, 9, 9) (rows ``ik``, columns ``jl``).
+
+    The normals n are (d, 3), shared by every point, or (p, d, 3), per point.
+    """
     nn = (n[..., :, None] * n[..., None, :]).reshape(*n.shape[:-1], 9)
     Q = (A.reshape(-1, 9) @ nn.T).reshape(A.shape[0], 3, 3, -1) if n.ndim == 2 \
         else np.matmul(A, nn.swapaxes(-1, -2)).reshape(A.shape[0], 3, 3, -1)
@@ -84,7 +86,8 @@ def _smallest_eigenvalue(S: np.ndarray) -> np.ndarray:
     p = np.sqrt(np.einsum("...ij,...ij->...", D, D) / 6.0)
     det = (D[..., 0, 0] * (D[..., 1, 1] * D[..., 2, 2] - D[..., 1, 2] ** 2)
            - D[..., 0, 1] * (D[..., 0, 1] * D[..., 2, 2] - D[..., 1, 2] * D[..., 0, 2])
-           + D[..., 0, 2] * (D[..., 0, 1] * D[..., 1, 2] - D[..., 1, 1] * D[..., 0, 2])) / np.where(p > 0.0, p, 1.0) ** 3
+           + D[..., 0, 2] * (D[..., 0, 1] * D[..., 1, 2] - D[..., 1, 1] * D[..., 0, 2]))
+    det /= np.where(p > 0.0, p, 1.0) ** 3
     phi = np.arccos(np.clip(0.5 * det, -1.0, 1.0)) / 3.0
     return q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
 
@@ -167,8 +170,10 @@ class EllipticityCheck:
         return self.lost_cells > 0
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dict (without the field): ``lost_cells``, ``n_cells``, ``min_margin_Pa``, ``location_m``,
-        ``normal``, ``polarization``."""
+        """JSON-ready dict of everything but the field.
+
+        Keys ``lost_cells``, ``n_cells``, ``min_margin_Pa``, ``location_m``, ``normal``, ``polarization``.
+        """
         return {"lost_cells": self.lost_cells, "n_cells": self.n_cells, "min_margin_Pa": self.min_margin,
                 "location_m": self.location.tolist(), "normal": self.normal.tolist(),
                 "polarization": self.polarization.tolist()}
