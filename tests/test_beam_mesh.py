@@ -77,7 +77,7 @@ def test_a_failing_gmsh_build_raises_on_every_rank_and_leaves_gmsh_usable():
         raise ValueError("no geometry here")
 
     comm = MPI.COMM_WORLD
-    error, match = (ValueError, "no geometry") if comm.rank == 0 else (RuntimeError, "gmsh failed to mesh 'broken'")
+    error, match = (ValueError, "no geometry") if comm.rank == 0 else (RuntimeError, "gmsh failed to build 'broken'")
     with pytest.raises(error, match=match):
         mesh_from_gmsh(comm, "broken", build, h=0.1, order=1)
     assert make_beam(comm, 1.0, 0.5, 0.5, h=0.5).n_cells > 0
