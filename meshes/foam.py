@@ -28,6 +28,13 @@ Valid densities (a modelling choice, see :func:`VoronoiFoam.density_range`)
   closes when ``r`` reaches its inradius (the struts on its edges touch across it). The largest valid radius is
   the ``MAX_CLOSED_WINDOW_FRACTION``-quantile of the window inradii.
 
+Flat cells
+----------
+For small ``gamma`` with few cells the stretched cells are wider than the cube's y–z period, and a cell meets its
+own periodic images: the diagram then does not close within a 7³ tiling and :class:`FoamParameterError` names
+gamma, n_cells and the bound ``n_cells ≳ 1/gamma``. That bound is what was observed, not a theorem (six seeds:
+gamma = 0.05 builds 6/6 with 20 cells, 4/6 with 14, 0/6 with 8; gamma = 0.02 builds 4/6 with 50, 1/6 with 35).
+
 Degenerate diagrams
 -------------------
 Voronoi vertices closer than ``VERTEX_MERGE_TOL`` times the mean cell size (numerically coincident vertices
@@ -167,8 +174,14 @@ def _periodic_voronoi(seeds: np.ndarray, gamma: float):
             if np.all(v - radius[:, None] > -m * box) and np.all(v + radius[:, None] < (m + 1) * box):
                 break
         log.debug("periodic Voronoi: a %d³ tiling is not enough, enlarging", 2 * m + 1)
-    else:  # pragma: no cover - needs pathological seeds
-        raise RuntimeError(f"periodic Voronoi diagram of {n} seeds (gamma={gamma}) needs more than a 7³ tiling")
+    else:
+        # flat cells: stretched by 1/gamma, a cell wider than the y–z period touches its own images
+        width = (1.0 / (gamma * n)) ** (1.0 / 3.0)
+        raise FoamParameterError(
+            f"gamma={gamma} is too flat for n_cells={n}: in the stretched metric the mean cell width "
+            f"(1/(gamma·n_cells))^(1/3) = {width:.2f} × the RVE's y–z period, and the periodic Voronoi diagram of "
+            f"these seeds does not close within a 7³ tiling of images; use n_cells ≥ about 1/gamma = "
+            f"{math.ceil(1.0 / gamma)} (seed-dependent near that bound) or gamma ≥ about 1/n_cells = {1.0 / n:.3g}")
 
     # merge numerically coincident vertices modulo the lattice
     wrapped = _wrap(vor.vertices[used], box)
@@ -356,6 +369,7 @@ class VoronoiFoam:
         Target solid volume fraction; must lie in :meth:`density_range` (a clear error gives that range).
     gamma
         Degree of anisotropy in ``(0, 1]``: the Voronoi metric stretches x by ``1/gamma``; 1 is isotropic.
+        Flat cells need enough of them: about ``n_cells ≥ 1/gamma`` (see "Flat cells" in the module docstring).
     seed
         Seed of ``numpy.random.default_rng`` for the cell seeds (same seed → bitwise identical foam).
     strut
