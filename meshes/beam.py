@@ -30,6 +30,7 @@ __all__ = [
     "BeamMesh",
     "TaggedMesh",
     "distribute_gmsh",
+    "generate_tetrahedra",
     "make_beam",
     "mesh_from_gmsh",
 ]
@@ -116,13 +117,18 @@ def mesh_from_gmsh(
     """
     def build_and_mesh():
         build()
-        gmsh.model.mesh.setSize(gmsh.model.getEntities(0), h)
-        gmsh.option.setNumber("Mesh.MeshSizeMax", h)
-        gmsh.model.mesh.generate(3)
-        if order > 1:
-            gmsh.model.mesh.setOrder(order)
+        generate_tetrahedra(h, order)
 
     return distribute_gmsh(comm, name, build_and_mesh)
+
+
+def generate_tetrahedra(h: float, order: int) -> None:
+    """Mesh the current gmsh model with tetrahedra of size ``h`` (every point and the maximum) and degree ``order``."""
+    gmsh.model.mesh.setSize(gmsh.model.getEntities(0), h)
+    gmsh.option.setNumber("Mesh.MeshSizeMax", h)
+    gmsh.model.mesh.generate(3)
+    if order > 1:
+        gmsh.model.mesh.setOrder(order)
 
 
 def distribute_gmsh(

@@ -64,7 +64,7 @@ import gmsh
 import numpy as np
 from mpi4py import MPI
 
-from meshes.beam import TaggedMesh, check_order
+from meshes.beam import TaggedMesh, check_order, generate_tetrahedra
 
 __all__ = [
     "ARM",
@@ -382,11 +382,7 @@ def _mesh_wedge(geometry: TripodGeometry, h: float, order: int) -> tuple[np.ndar
         gmsh.option.setNumber("General.Terminal", 0)
         gmsh.model.add("tripod_wedge")
         geometry.build_gmsh_wedge()
-        gmsh.model.mesh.setSize(gmsh.model.getEntities(0), h)
-        gmsh.option.setNumber("Mesh.MeshSizeMax", h)
-        gmsh.model.mesh.generate(3)
-        if order > 1:
-            gmsh.model.mesh.setOrder(order)
+        generate_tetrahedra(h, order)
         x = dolfinx.io.gmshio.extract_geometry(gmsh.model)
         (cell_type, topology), = dolfinx.io.gmshio.extract_topology_and_markers(gmsh.model).items()
     finally:
