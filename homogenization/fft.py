@@ -518,6 +518,24 @@ def _check_macro_strains(macro_strains) -> np.ndarray:
     return E
 
 
+def _check_checkpoints(checkpoints, tol: float) -> list[float]:
+    marks = sorted({float(t) for t in checkpoints}, reverse=True)
+    bad = [t for t in marks if not (np.isfinite(t) and tol <= t < 1.0)]
+    if bad:
+        raise ValueError(f"checkpoints must satisfy tol = {tol:g} <= t < 1, got {bad}")
+    return marks
+
+
+def _stiffness_columns(strains: np.ndarray, mean_stress: np.ndarray) -> np.ndarray:
+    """Raw Voigt C: column J is ⟨σ⟩/E_J of the case whose strain is a multiple of unit strain J (else NaN)."""
+    C_raw = np.full((6, 6), np.nan)
+    for E_voigt, sigma in zip(strains, mean_stress):
+        nonzero = np.flatnonzero(E_voigt)
+        if len(nonzero) == 1:
+            C_raw[:, nonzero[0]] = sigma / E_voigt[nonzero[0]]
+    return C_raw
+
+
 def _default_threads() -> int:
     try:
         return len(os.sched_getaffinity(0))
@@ -526,7 +544,8 @@ def _default_threads() -> int:
 
 
 # --------------------------------------------------------------------------------------------------
-# The schemes: each solves one load case, returns (⟨σ⟩ Voigt, residual history, converged, message)
+# The schemes: each solves one load case, returns (⟨σ⟩ Voigt, residual history, converged, message) and calls
+# report(iteration, residual, ⟨σ⟩ of the current iterate) after every iteration (and at iteration 0)
 # --------------------------------------------------------------------------------------------------
 _ROUNDOFF = 1e3 * np.finfo(float).eps
 
@@ -549,10 +568,10 @@ def _solve_cg(ws: _Workspace, E: np.ndarray, tol: float, maxiter: int, report: C
     rr = ws.dot(r, r)
     r0 = np.sqrt(rr)
     if r0 <= _ROUNDOFF * load:
-        report(0, 0.0)
+        report(0, 0.0, mean)
         return mean, [0.0], True, ""
     history = [1.0]
-    report(0, 1.0)
+    report(0, 1.0, mean)
     beta = 0.0  # p still holds E: the first direction is p = r + 0·p = r
     for it in range(1, maxiter + 1):
         pAp = ws.constitutive(work, p, update=(r, beta))  # p ← r + βp; ⟨p, G[C:p]⟩ = ⟨p, C:p⟩ since p = G[p]
@@ -568,7 +587,7 @@ def _solve_cg(ws: _Workspace, E: np.ndarray, tol: float, maxiter: int, report: C
             ws.axpy(np.full(6, alpha), p, x)  # x ← x + α p
         rr_new = ws.axpy(-alpha * to_mandel, work, r, norm=True)
         history.append(float(np.sqrt(rr_new) / r0))
-        report(it, history[-1])
+        report(it, history[-1], mean)
         if history[-1] <= tol:
             return mean, history, True, ""
         beta = rr_new / rr
@@ -594,10 +613,10 @@ def _solve_basic(ws: _Workspace, E: np.ndarray, tol: float, maxiter: int, report
         if it == 0:
             r0 = np.sqrt(max(g2, 0.0))
             if r0 <= _ROUNDOFF * load:
-                report(0, 0.0)
+                report(0, 0.0, mean)
                 return mean, [0.0], True, ""
         history.append(float(np.sqrt(max(g2, 0.0)) / r0))
-        report(it, history[-1])
+        report(it, history[-1], mean)
         if history[-1] <= tol:
             return mean, history, True, ""
         if not np.isfinite(history[-1]) or history[-1] > 1e6:
@@ -624,6 +643,7 @@ def homogenize_fft(
     threads: int | None = None,
     macro_strains: np.ndarray | None = None,
     callback: Callable[[int, int, float], None] | None = None,
+    checkpoints: Sequence[float] = (),
     raise_on_failure: bool = True,
     return_fields: bool = False,
 ) -> HomogenizationResult:
@@ -654,6 +674,13 @@ def homogenize_fft(
         no such case are NaN. ``info["mean_stress"]`` holds ``⟨σ⟩`` (Voigt) of every case.
     callback
         ``callback(case, iteration, residual)`` after every iteration (and at iteration 0).
+    checkpoints
+        Looser tolerances (``tol ≤ t < 1``) at which to record the result a run with ``tol = t`` would return:
+        the iterates of a run pass through exactly the states a looser run stops at, so one run at the tightest
+        tolerance gives a whole tolerance study. ``info["checkpoints"]`` lists, loosest first, ``{"tol", "C",
+        "iterations", "wall_s", "converged"}``: ``C`` symmetrized like ``result.C``, ``iterations`` per load
+        case, ``wall_s`` the set-up plus each load case's time up to its first iteration with residual ≤ t (or
+        its whole time if it never got there: then ``converged`` is False).
     raise_on_failure
         If True (default) non-convergence raises :class:`FFTConvergenceError`; if False the result comes back
         with ``converged=False`` and the residual histories.
@@ -688,6 +715,7 @@ def homogenize_fft(
     if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
         raise ValueError(f"threads must be a positive integer, got {threads!r}")
     strains = _check_macro_strains(macro_strains)
+    marks = _check_checkpoints(checkpoints, tol)
     mandel = {p: voigt_to_mandel(C) for p, C in stiff.items()}
     ref = None
     if scheme == "basic":
@@ -703,18 +731,30 @@ def homogenize_fft(
                 scheme, discretization, phases.shape, threads, ws.nbytes / 1e6, ws.plan_s)
     mean_stress, iterations, residuals, failures = [], [], [], []
     fields = {"strain": [], "stress": []} if return_fields else None
+    hits: list[list[tuple]] = [[] for _ in marks]  # per checkpoint, per case: (⟨σ⟩, iterations, seconds, reached)
     iter_s = iter_fft_s = 0.0
+    setup_s = time.perf_counter() - t_start
     try:
         for case, E_voigt in enumerate(strains):
             E = E_voigt / _MANDEL
-            report = (lambda it, res, case=case: callback(case, it, res)) if callback else (lambda it, res: None)
             t0, f0 = time.perf_counter(), ws.fft_s
+
+            def report(it, res, mean, case=case, t0=t0):
+                if callback is not None:
+                    callback(case, it, res)
+                for k, t in enumerate(marks):
+                    if len(hits[k]) == case and res <= t:
+                        hits[k].append((mean.copy(), it, time.perf_counter() - t0, True))
+
             if scheme == "cg":
                 mean, history, ok, message = _solve_cg(ws, E, tol, maxiter, report, keep)
             else:
                 mean, history, ok, message = _solve_basic(ws, E, tol, maxiter, report, ref)
             iter_s += time.perf_counter() - t0
             iter_fft_s += ws.fft_s - f0
+            for k in range(len(marks)):
+                if len(hits[k]) == case:  # this checkpoint was never reached
+                    hits[k].append((mean, len(history) - 1, time.perf_counter() - t0, False))
             mean_stress.append(mean)
             iterations.append(len(history) - 1)
             residuals.append(history)
@@ -738,11 +778,7 @@ def homogenize_fft(
         ws.close()
 
     mean_stress = np.array(mean_stress)
-    C_raw = np.full((6, 6), np.nan)
-    for E_voigt, sigma in zip(strains, mean_stress):
-        nonzero = np.flatnonzero(E_voigt)
-        if len(nonzero) == 1:
-            C_raw[:, nonzero[0]] = sigma / E_voigt[nonzero[0]]
+    C_raw = _stiffness_columns(strains, mean_stress)
     n_iter = max(sum(iterations), 1)
     info = {
         "scheme": scheme, "discretization": discretization, "shape": list(phases.shape), "tol": tol,
@@ -758,6 +794,11 @@ def homogenize_fft(
         "peak_rss_bytes": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
         "failures": failures,
     }
+    if marks:
+        columns = [_stiffness_columns(strains, np.array([h[0] for h in hit])) for hit in hits]
+        info["checkpoints"] = [
+            {"tol": t, "C": 0.5 * (C + C.T), "iterations": [h[1] for h in hit], "wall_s": setup_s + sum(h[2] for h in hit),
+             "converged": all(h[3] for h in hit)} for t, C, hit in zip(marks, columns, hits)]
     if ref is not None:
         info["reference_medium"] = {"lambda0": ref.lam, "mu0": ref.mu, "contraction_factor": ref.rate}
     return HomogenizationResult.from_columns(

@@ -196,6 +196,31 @@ def test_unconverged_result_is_flagged_and_its_fields_are_consistent(scheme):
     assert np.allclose(r.fields["stress"].mean(axis=(2, 3, 4))[0], r.C_raw[:, 0], rtol=1e-10, atol=1e-14)
 
 
+@pytest.mark.parametrize("scheme", ["cg", "basic"])
+def test_checkpoints_are_the_looser_runs(scheme):
+    """A checkpoint at t is exactly what a run with tol = t returns: C bit for bit, iterations; one not reached
+    within maxiter is flagged and holds the final state, like the unconverged run."""
+    img = sphere_image(10, 0.3)
+    materials = [C_SOFT, isotropic_voigt(6.0, 0.2)]
+    tight = homogenize_fft(img, materials, scheme=scheme, tol=1e-7, checkpoints=[1e-3, 1e-5, 1e-7], threads=1)
+    points = tight.info["checkpoints"]
+    assert [p["tol"] for p in points] == [1e-3, 1e-5, 1e-7]
+    for point in points:
+        run = homogenize_fft(img, materials, scheme=scheme, tol=point["tol"], threads=1)
+        assert point["iterations"] == run.iterations and point["converged"]
+        assert np.array_equal(point["C"], run.C)
+        assert 0.0 < point["wall_s"] <= tight.wall_s
+    assert points[0]["wall_s"] < points[-1]["wall_s"] and np.array_equal(points[-1]["C"], tight.C)
+    assert sum(points[0]["iterations"]) < sum(points[1]["iterations"]) < sum(points[2]["iterations"])
+
+    capped = homogenize_fft(img, materials, scheme=scheme, tol=1e-12, maxiter=5, raise_on_failure=False,
+                            checkpoints=[1e-1, 1e-12], threads=1)
+    loose, unreached = capped.info["checkpoints"]
+    assert not unreached["converged"] and unreached["iterations"] == capped.iterations
+    assert np.array_equal(unreached["C"], capped.C)
+    assert loose["converged"] == all(min(r) <= 1e-1 for r in capped.residuals)
+
+
 def test_basic_and_cg_agree_on_finite_contrast():
     img = sphere_image(10, 0.3)
     materials = [C_SOFT, isotropic_voigt(5.0, 0.2)]
@@ -306,6 +331,8 @@ def test_wave_directions_zero_where_g_vanishes():
     (np.zeros((4, 4, 4), int), [C_SOFT], {"maxiter": 0}, "maxiter must be a positive integer"),
     (np.zeros((4, 4, 4), int), [C_SOFT], {"threads": 0}, "threads must be a positive integer"),
     (np.zeros((4, 4, 4), int), [C_SOFT], {"macro_strains": np.ones((2, 3))}, r"\(n_cases, 6\)"),
+    (np.zeros((4, 4, 4), int), [C_SOFT], {"tol": 1e-4, "checkpoints": [1e-6]}, r"tol = 0.0001 <= t < 1.*1e-06"),
+    (np.zeros((4, 4, 4), int), [C_SOFT], {"checkpoints": [1.0]}, r"checkpoints must satisfy.*\[1.0\]"),
 ])
 def test_bad_inputs(phases, materials, kwargs, match):
     with pytest.raises(ValueError, match=match):
