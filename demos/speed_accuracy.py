@@ -18,19 +18,24 @@
 #   size × degree × model, against the finest P2 of the same model, with the small-strain validity measure of
 #   fenicsfoam.validity.
 #
-# Run: `python demos/speed_accuracy.py --out out/speed_accuracy [--ci]`, also under `mpirun -n 2` (the FFT solver
-# is serial: the homogenization studies and the FEM RVE cross-check run on rank 0, the latter on MPI.COMM_SELF;
-# the beam and the Tripod run on all ranks).
+# Run: `python demos/speed_accuracy.py --out out/speed_accuracy [--size ci|default|full]`, also under
+# `mpirun -n N` (a batch: the beam and the Tripod run on all ranks; the homogenization runs — FFT, RVE size, FEM
+# RVE — are independent serial jobs spread over the ranks by estimated cost, each on one thread and
+# MPI.COMM_SELF, gathered on rank 0). `full` is the issue's grid (~1.5 h on 2 ranks here), `default` a reduced
+# one (~10 min serial).
 # Outputs (rank 0): `homogenization.csv`, `fem_crosscheck.csv`, `rve_size.csv`, `beam.csv`, `tripod.csv`,
 # `*_pareto.png`, `what_to_pick.md`.
 #
 # Modelling choices (documented, not tuned):
-# - reference of a foam: the finest resolution N₂ at the tightest tolerance, Richardson-extrapolated with the
-#   next finer N₁ assuming first order in the voxel size (the voxelized boundary is O(h)):
+# - reference of a foam: the rotated, zero-void runs at the two finest resolutions N₁ < N₂ and the reference
+#   tolerance, Richardson-extrapolated assuming first order in the voxel size (the voxelized boundary is O(h)):
 #   `X_ref = X(N₂) + (X(N₂) − X(N₁)) / (N₂/N₁ − 1)`;
+# - tolerance: each FFT run goes to its block's tightest tol and records the result at every looser tolerance
+#   on the way (`homogenize_fft(checkpoints=...)`: bit for bit what a run with that tol returns, with the wall
+#   time it would have taken), so the tolerance axis costs no extra runs;
 # - error of a setting: the largest relative error over E1, E2, E3, G23, G13, G12, leaving out constants below
 #   1 % of the largest (E1 of the γ = 0.1 foam: not resolved at these N);
-# - wall time: the FFT solver's (`r.wall_s`, six load cases) or the beam's (problem set-up + Newton), not the
+# - wall time: the FFT solver's on one thread (set-up and six load cases) or the beam's (problem set-up + Newton), not the
 #   foam generation or meshing, which any setting pays once;
 # - FEM cross-check: zero void, two-phase mesh_rve at h = 1/n (n grid cubes per side); difference of a constant
 #   `(X_fem − X_ref) / |X_ref|`. P2 on a mesh is below P1 in energy (nested spaces), P1 is far too stiff in
@@ -66,31 +71,52 @@ TRIPOD_SCENE = Path(__file__).resolve().parent / "scenes" / "tripod_case_b.toml"
 #: The load steps the study reports (the scene's); the error is measured at the last one.
 TRIPOD_STEPS = ("rest", "middle", "top")
 
-# Study sizes. "default" is what README's tables were measured with; "ci" runs in seconds.
+# Study sizes. "ci" runs in seconds, "default" in ~10 min serial, "full" is the issue's grid (README's tables).
+# fft: blocks of runs, each N × discretization × void of a block run once to the block's tol, recording every
+# tolerance of "tols" down to it; the reference pair must be among the rotated, zero-void runs at reference_tol.
+# rve_resolution: n_cells → N, N ≈ 16 ∛n_cells so that every RVE has ~16 voxels per cell width.
+_MACRO = {
+    "beam_h": [0.0075, 0.005, 0.00375], "degrees": [1, 2], "models": ["linear", "corotational", "svk"],
+    "rtols": [1e-4, 1e-8], "tripod_h": [0.006, 0.0046, 0.0035], "tripod_degrees": [1, 2],
+    "tripod_models": ["linear", "corotational", "svk"],
+}
 SIZES = {
     "ci": {
-        "foams": [(0.34, 1.0)], "n_cells": 8, "resolutions": [12, 16], "reference": (16, 20),
-        "discretizations": ["rotated"], "voids": [0.0, 1e-3], "tols": [1e-2],
-        "reference_tol": 1e-3, "maxiter": 200,
-        "rve_cells": [8], "rve_seeds": [1, 2], "rve_resolution": 16, "fem_grid": [8], "fem_degrees": [1],
+        "foams": [(0.34, 1.0)], "n_cells": 8, "tols": [1e-2, 1e-3],
+        "fft": [{"N": [12, 16, 20], "discretizations": ["rotated"], "voids": [0.0, 1e-3], "tol": 1e-3,
+                 "maxiter": 200}],
+        "reference": (16, 20), "reference_tol": 1e-3,
+        "rve_foams": [(0.34, 1.0)], "rve_resolution": {8: 16}, "rve_seeds": [1, 2], "rve_tol": 1e-3,
+        "fem_grid": [8], "fem_degrees": [1],
         "beam_h": [0.0075], "degrees": [1, 2], "models": ["linear", "corotational"], "rtols": [1e-8],
         "tripod_h": [0.006], "tripod_degrees": [1], "tripod_models": ["corotational"],
     },
     "default": {
-        "foams": [(0.34, 1.0), (0.18, 1.0), (0.34, 0.1)], "n_cells": 8, "resolutions": [16, 24, 32, 48],
-        "reference": (48, 64), "discretizations": ["rotated"], "voids": [0.0, 1e-3], "tols": [1e-2, 1e-3],
-        "reference_tol": 1e-3, "maxiter": 400, "rve_cells": [8, 16], "rve_seeds": [1, 2, 3],
-        "rve_resolution": 32, "fem_grid": [12, 16], "fem_degrees": [1, 2],
-        "beam_h": [0.0075, 0.005, 0.00375], "degrees": [1, 2],
-        "models": ["linear", "corotational", "svk"], "rtols": [1e-4, 1e-8],
-        "tripod_h": [0.006, 0.0046, 0.0035], "tripod_degrees": [1, 2],
-        "tripod_models": ["linear", "corotational", "svk"],
+        "foams": [(0.34, 1.0), (0.18, 1.0), (0.34, 0.1)], "n_cells": 8, "tols": [1e-2, 1e-3],
+        "fft": [{"N": [16, 24, 32, 48, 64], "discretizations": ["rotated"], "voids": [0.0, 1e-3], "tol": 1e-3,
+                 "maxiter": 400}],
+        "reference": (48, 64), "reference_tol": 1e-3,
+        "rve_foams": [(0.34, 1.0)], "rve_resolution": {8: 32, 16: 40}, "rve_seeds": [1, 2, 3], "rve_tol": 1e-3,
+        "fem_grid": [12, 16], "fem_degrees": [1, 2], **_MACRO,
+    },
+    "full": {
+        "foams": [(d, g) for g in (1.0, 0.1) for d in (0.09, 0.18, 0.34)], "n_cells": 8,
+        "tols": [1e-3, 1e-4, 1e-5, 1e-6, 1e-7, 1e-8],
+        "fft": [{"N": [24, 32, 48, 64], "discretizations": ["rotated", "spectral"], "voids": [1e-3], "tol": 1e-8,
+                 "maxiter": 1200},
+                {"N": [24, 32, 48, 64], "discretizations": ["rotated"], "voids": [0.0], "tol": 1e-8,
+                 "maxiter": 1200},
+                {"N": [24, 32], "discretizations": ["spectral"], "voids": [0.0], "tol": 1e-8, "maxiter": 1200},
+                {"N": [96, 128], "discretizations": ["rotated"], "voids": [0.0], "tol": 1e-4, "maxiter": 1200}],
+        "reference": (96, 128), "reference_tol": 1e-4,
+        "rve_foams": [(0.34, 1.0), (0.18, 1.0)], "rve_resolution": {8: 32, 16: 40, 32: 50, 64: 64},
+        "rve_seeds": [1, 2, 3], "rve_tol": 1e-4, "fem_grid": [12, 16], "fem_degrees": [1, 2], **_MACRO,
     },
 }
 
 
 # %% [markdown]
-# ## Homogenization: resolution × discretization × tolerance
+# ## Homogenization: resolution × discretization × tolerance, RVE size, FEM cross-check of the reference
 
 # %%
 def constants_of(C: np.ndarray) -> np.ndarray:
@@ -116,106 +142,157 @@ def relative_error(values: np.ndarray, reference: np.ndarray) -> float:
     return float(np.max(np.abs(values[kept] - reference[kept]) / np.abs(reference[kept])))
 
 
-def homogenization_study(size: dict) -> tuple[list[dict], list[dict], dict[tuple[float, float], dict[str, Any]]]:
-    """Rows of the resolution study and of the RVE-size study, and per foam ``(density, gamma)`` its FFT reference.
+def study_jobs(size: dict) -> list[dict]:
+    """Every run of the homogenization studies, each independent and serial (MPI.COMM_SELF).
 
-    The references map to ``{"foam": VoronoiFoam, "finest": X(N₂), "reference": Richardson X_ref}`` (constants
-    in :data:`CONSTANTS` order), for :func:`fem_crosscheck`. Serial: the FFT runs on the calling rank.
+    ``fft``: one FFT run per foam × block × N × discretization × void, to the block's tol, recording every
+    tolerance of ``size["tols"]`` down to it (``homogenize_fft(checkpoints=...)``); ``rve``: one FFT run per
+    RVE-study foam × n_cells × seed; ``fem``: the FEM RVE (all degrees) per foam × mesh size.
+    ``cost`` is a rough estimate in seconds, used only to balance the ranks.
     """
+    jobs = []
+    for density, gamma in size["foams"]:
+        for block in size["fft"]:
+            for N, discretization, void in itertools.product(block["N"], block["discretizations"], block["voids"]):
+                iterations = 6 * (block["maxiter"] if void == 0.0 else min(block["maxiter"], 300))
+                jobs.append({"kind": "fft", "density": density, "gamma": gamma, "N": N,
+                             "discretization": discretization, "void": void, "tol": block["tol"],
+                             "maxiter": block["maxiter"], "cost": 7e-8 * N**3 * iterations})
+        for n in size["fem_grid"]:
+            jobs.append({"kind": "fem", "density": density, "gamma": gamma, "n": n,
+                         "cost": sum(20.0 * (n / 16) ** 3 * degree**3 for degree in size["fem_degrees"])})
+    for (density, gamma), (n_cells, N), seed in itertools.product(
+            size["rve_foams"], size["rve_resolution"].items(), size["rve_seeds"]):
+        jobs.append({"kind": "rve", "density": density, "gamma": gamma, "n_cells": n_cells, "N": N, "seed": seed,
+                     "cost": 7e-8 * N**3 * 6 * 300})
+    return jobs
+
+
+def run_jobs(comm: MPI.Comm, size: dict, jobs: list[dict]) -> list[dict] | None:
+    """Run the jobs spread over the ranks (greedily, by estimated cost); rank 0 gets the rows, others None.
+
+    Each rank runs its jobs one after the other on one thread (`threads=1`, MPI.COMM_SELF), so that wall times do
+    not depend on how many ranks share the machine's cores.
+    """
+    load, mine = np.zeros(comm.size), []
+    for i in sorted(range(len(jobs)), key=lambda i: -jobs[i]["cost"]):
+        rank = int(np.argmin(load))
+        load[rank] += jobs[i]["cost"]
+        if rank == comm.rank:
+            mine.append(i)
+    cache: dict[tuple, Any] = {}
+    done = {i: run_job(size, jobs[i], cache) for i in sorted(mine)}
+    gathered = comm.gather(done, root=0)
+    if comm.rank != 0:
+        return None
+    merged = {i: rows for part in gathered for i, rows in part.items()}
+    return [row for i in range(len(jobs)) for row in merged[i]]
+
+
+def run_job(size: dict, job: dict, cache: dict) -> list[dict]:
+    """The rows of one job (see :func:`study_jobs`); ``cache`` keeps this rank's foams and voxel images."""
+    from homogenization.fem import homogenize_fem
     from homogenization.fft import homogenize_fft
     from homogenization.tensors import InadmissibleMaterialError, isotropic_voigt
     from meshes.foam import VoronoiFoam
-
-    solid = isotropic_voigt(1.0, 0.3)
-
-    def run(img, discretization, tol, void=0.0):
-        """(constants, wall s, iterations, converged); NaN constants if C is not positive definite."""
-        r = homogenize_fft(img.astype(np.int8), [void * solid, solid], discretization=discretization, tol=tol,
-                           maxiter=size["maxiter"], raise_on_failure=False)
-        try:
-            values = constants_of(r.C)
-        except InadmissibleMaterialError as error:   # e.g. struts not resolved: the solid does not percolate
-            print(f"  N={img.shape[0]}: {error}", flush=True)
-            values = np.full(len(CONSTANTS), np.nan)
-        return values, r.wall_s, int(sum(r.iterations)), bool(r.converged)
-
-    rows, references = [], {}
-    for density, gamma in size["foams"]:
-        foam = VoronoiFoam(n_cells=size["n_cells"], density=density, gamma=gamma, seed=1)
-        n1, n2 = size["reference"]
-        images = {N: foam.voxelize(N) for N in sorted({*size["resolutions"], n1, n2})}
-        ref_values = [run(images[N], "rotated", size["reference_tol"])[0] for N in (n1, n2)]
-        reference = richardson(*ref_values, n2 / n1)
-        references[density, gamma] = {"foam": foam, "finest": ref_values[1], "reference": reference}
-        for N in size["resolutions"]:
-            for discretization, void, tol in itertools.product(size["discretizations"], size["voids"],
-                                                               size["tols"]):
-                values, wall, iterations, converged = run(images[N], discretization, tol, void)
-                error = relative_error(values, reference) if np.all(np.isfinite(values)) else np.inf
-                rows.append({"density": density, "gamma": gamma, "N": N, "discretization": discretization,
-                             "void": void, "tol": tol, "wall_s": wall, "iterations": iterations,
-                             "converged": converged, "error": error,
-                             **{k: v for k, v in zip(CONSTANTS, values)},
-                             **{f"{k}_ref": v for k, v in zip(CONSTANTS, reference)}})
-                print(f"foam {density} γ={gamma} N={N:3d} {discretization:8s} void={void:g} tol={tol:.0e}: "
-                      f"error {error:.2e}, {wall:.2f} s, {iterations} its, converged {converged}", flush=True)
-
-    rve_rows = []
-    density, gamma = size["foams"][0]
-    for n_cells in size["rve_cells"]:
-        values = []
-        for seed in size["rve_seeds"]:
-            img = VoronoiFoam(n_cells=n_cells, density=density, gamma=gamma, seed=seed).voxelize(
-                size["rve_resolution"])
-            values.append(run(img, "rotated", 1e-3)[0])
-        values = np.array(values)
-        scatter = values.std(axis=0, ddof=1) / np.abs(values.mean(axis=0))
-        rve_rows.append({"density": density, "gamma": gamma, "n_cells": n_cells, "N": size["rve_resolution"],
-                         "seeds": len(size["rve_seeds"]), "max_scatter": float(scatter.max()),
-                         **{f"{k}_mean": v for k, v in zip(CONSTANTS, values.mean(axis=0))},
-                         **{f"{k}_scatter": v for k, v in zip(CONSTANTS, scatter)}})
-        print(f"RVE n_cells={n_cells}: seed scatter (std/mean) max {scatter.max():.3f}", flush=True)
-    return rows, rve_rows, references
-
-
-# %% [markdown]
-# ## Cross-check of the FFT reference: periodic FEM RVE on the conforming mesh of the same foam
-
-# %%
-def fem_crosscheck(size: dict, references: dict[tuple[float, float], dict[str, Any]]) -> list[dict]:
-    """FEM P1/P2 constants on ``mesh_rve(foam, 1/n)`` for n in ``size["fem_grid"]`` vs each foam's FFT reference.
-
-    Per row: the constants, ``{X}_diff = (X_fem − X_ref) / |X_ref|``, ``{X}_fft_finest_diff`` (the same for the
-    un-extrapolated finest FFT), ``max_diff`` over the constants ≥ 1 % of the largest (:func:`relative_error`),
-    the meshed solid fraction, the diagonal of C (for the P2 ≤ P1 check), meshing and solve times. Zero void; runs
-    on MPI.COMM_SELF (call it on one rank), each mesh built once for both degrees.
-    """
-    from homogenization.fem import homogenize_fem
-    from homogenization.tensors import isotropic_voigt
     from meshes.rve import SOLID, VOID, mesh_rve
 
-    materials = {SOLID: isotropic_voigt(1.0, 0.3), VOID: np.zeros((6, 6))}
+    n_cells, seed = job.get("n_cells", size["n_cells"]), job.get("seed", 1)
+    key = (job["density"], job["gamma"], n_cells, seed)
+    if key not in cache:
+        cache[key] = VoronoiFoam(n_cells=n_cells, density=job["density"], gamma=job["gamma"], seed=seed)
+    foam = cache[key]
+    solid = isotropic_voigt(1.0, 0.3)
+    common = {k: job[k] for k in ("kind", "density", "gamma")}
+
+    def constants_or_nan(C):
+        try:
+            return constants_of(C)
+        except InadmissibleMaterialError as error:   # e.g. struts not resolved: the solid does not percolate
+            print(f"  {job}: {error}", flush=True)
+            return np.full(len(CONSTANTS), np.nan)
+
+    if job["kind"] == "fem":
+        rve = mesh_rve(foam, 1.0 / job["n"], MPI.COMM_SELF)
+        rows = []
+        for degree in size["fem_degrees"]:
+            r = homogenize_fem(rve.mesh, rve.cell_tags, {SOLID: solid, VOID: np.zeros((6, 6))}, degree=degree,
+                               comm=MPI.COMM_SELF)
+            rows.append({**common, "h": f"1/{job['n']}", "tets": rve.n_elements, "degree": degree,
+                         "dofs": r.info["n_dofs"], "solid_fraction": r.info["volume_fractions"][SOLID],
+                         "mesh_s": rve.meshing_s, "wall_s": r.wall_s,
+                         **dict(zip(CONSTANTS, constants_of(r.C))), **{f"C{j + 1}{j + 1}": r.C[j, j] for j in range(6)}})
+            print(f"FEM RVE foam {job['density']} γ={job['gamma']} h=1/{job['n']} ({rve.n_elements} tets) P{degree}: "
+                  f"solid {rows[-1]['solid_fraction']:.4f}, {r.wall_s:.1f} s", flush=True)
+        return rows
+
+    image_key = (*key, job["N"])
+    if image_key not in cache:
+        cache[image_key] = foam.voxelize(job["N"]).astype(np.int8)
+    if job["kind"] == "rve":
+        r = homogenize_fft(cache.pop(image_key), [0.0 * solid, solid], tol=size["rve_tol"], threads=1,
+                           raise_on_failure=False)
+        return [{**common, "n_cells": n_cells, "N": job["N"], "seed": seed, "wall_s": r.wall_s,
+                 "converged": r.converged, **dict(zip(CONSTANTS, constants_or_nan(r.C)))}]
+
+    tols = [t for t in size["tols"] if t >= job["tol"]]
+    r = homogenize_fft(cache[image_key], [job["void"] * solid, solid], discretization=job["discretization"],
+                       tol=job["tol"], maxiter=job["maxiter"], threads=1, checkpoints=tols, raise_on_failure=False)
     rows = []
-    for (density, gamma), ref in references.items():
-        for n in size["fem_grid"]:
-            rve = mesh_rve(ref["foam"], 1.0 / n, MPI.COMM_SELF)
-            for degree in size["fem_degrees"]:
-                r = homogenize_fem(rve.mesh, rve.cell_tags, materials, degree=degree, comm=MPI.COMM_SELF)
-                values = constants_of(r.C)
-                rows.append({"density": density, "gamma": gamma, "h": f"1/{n}", "tets": rve.n_elements,
-                             "degree": degree, "dofs": r.info["n_dofs"],
-                             "solid_fraction": r.info["volume_fractions"][SOLID], "mesh_s": rve.meshing_s,
-                             "wall_s": r.wall_s, "max_diff": relative_error(values, ref["reference"]),
-                             **{k: v for k, v in zip(CONSTANTS, values)},
-                             **{f"{k}_ref": v for k, v in zip(CONSTANTS, ref["reference"])},
-                             **{f"{k}_diff": (v - x) / abs(x) for k, v, x in zip(CONSTANTS, values, ref["reference"])},
-                             **{f"{k}_fft_finest_diff": (f - x) / abs(x)
-                                for k, f, x in zip(CONSTANTS, ref["finest"], ref["reference"])},
-                             **{f"C{j + 1}{j + 1}": r.C[j, j] for j in range(6)}})
-                print(f"FEM RVE foam {density} γ={gamma} h=1/{n} ({rve.n_elements} tets) P{degree}: max difference "
-                      f"to the FFT reference {rows[-1]['max_diff']:.2e}, solid {rows[-1]['solid_fraction']:.4f}, "
-                      f"{r.wall_s:.1f} s", flush=True)
+    for point in r.info["checkpoints"]:
+        rows.append({**common, "N": job["N"], "discretization": job["discretization"], "void": job["void"],
+                     "tol": point["tol"], "wall_s": point["wall_s"], "iterations": int(sum(point["iterations"])),
+                     "converged": point["converged"], **dict(zip(CONSTANTS, constants_or_nan(point["C"])))})
+    print(f"foam {job['density']} γ={job['gamma']} N={job['N']:3d} {job['discretization']:8s} void={job['void']:g}: "
+          + ", ".join(f"tol {p['tol']:.0e} {sum(p['iterations'])} its {p['wall_s']:.1f} s"
+                      + ("" if p["converged"] else " (not reached)") for p in r.info["checkpoints"]), flush=True)
     return rows
+
+
+def homogenization_study(comm: MPI.Comm, size: dict) -> tuple[list[dict], list[dict], list[dict]] | None:
+    """Rows of the FFT resolution study, of the FEM cross-check and of the RVE-size study (rank 0; None elsewhere).
+
+    Per foam the FFT reference is the Richardson extrapolation of the rotated, zero-void runs at
+    ``size["reference"] = (N₁, N₂)`` and ``size["reference_tol"]``; each FFT row gets its ``error`` against it and
+    ``{X}_ref``, each FEM row ``{X}_diff = (X_fem − X_ref)/|X_ref|``, ``{X}_fft_finest_diff`` (the same for
+    X(N₂)) and ``max_diff``; each RVE row (n_cells, N) the mean and scatter (std/mean) over the seeds.
+    """
+    rows = run_jobs(comm, size, study_jobs(size))
+    if rows is None:
+        return None
+    n1, n2 = size["reference"]
+    hom_rows, fem_rows, rve_rows = [], [], []
+    for density, gamma in size["foams"]:
+        foam_rows = [r for r in rows if (r["density"], r["gamma"]) == (density, gamma)]
+
+        def at(N):
+            match = [r for r in foam_rows if r["kind"] == "fft" and r["N"] == N and r["discretization"] == "rotated"
+                     and r["void"] == 0.0 and r["tol"] == size["reference_tol"]]
+            return np.array([match[0][k] for k in CONSTANTS])
+
+        finest, reference = at(n2), richardson(at(n1), at(n2), n2 / n1)
+        for r in foam_rows:
+            values = np.array([r[k] for k in CONSTANTS])
+            if r["kind"] == "fft":
+                r["error"] = relative_error(values, reference) if np.all(np.isfinite(values)) else np.inf
+                hom_rows.append({**r, **{f"{k}_ref": x for k, x in zip(CONSTANTS, reference)}})
+            elif r["kind"] == "fem":
+                fem_rows.append({**r, "max_diff": relative_error(values, reference),
+                                 **{f"{k}_ref": x for k, x in zip(CONSTANTS, reference)},
+                                 **{f"{k}_diff": (v - x) / abs(x) for k, v, x in zip(CONSTANTS, values, reference)},
+                                 **{f"{k}_fft_finest_diff": (f - x) / abs(x)
+                                    for k, f, x in zip(CONSTANTS, finest, reference)}})
+    for (density, gamma), (n_cells, N) in itertools.product(size["rve_foams"], size["rve_resolution"].items()):
+        values = np.array([[r[k] for k in CONSTANTS] for r in rows if r["kind"] == "rve" and r["n_cells"] == n_cells
+                           and (r["density"], r["gamma"]) == (density, gamma)])
+        scatter = values.std(axis=0, ddof=1) / np.abs(values.mean(axis=0))
+        rve_rows.append({"density": density, "gamma": gamma, "n_cells": n_cells, "N": N, "seeds": len(values),
+                         "max_scatter": float(np.nanmax(scatter)),
+                         **{f"{k}_mean": v for k, v in zip(CONSTANTS, values.mean(axis=0))},
+                         **{f"{k}_scatter": v for k, v in zip(CONSTANTS, scatter)}})
+        print(f"RVE ρ={density} γ={gamma} n_cells={n_cells} N={N}: seed scatter (std/mean) max "
+              f"{np.nanmax(scatter):.3f}", flush=True)
+    return hom_rows, fem_rows, rve_rows
 
 
 # %% [markdown]
@@ -445,6 +522,20 @@ def groups_by(rows: list[dict], keys: tuple[str, ...], values: list[tuple], labe
     return [(label(*v), [r for r in rows if tuple(r[k] for k in keys) == tuple(v)]) for v in values]
 
 
+def fft_table(size: dict, hom_rows: list[dict]) -> str:
+    """Markdown: one line per foam × N × discretization × void, one column per tolerance (error / its / s)."""
+    tols = size["tols"]
+    lines = ["| foam | N | discretization | void | " + " | ".join(f"tol {t:g}" for t in tols) + " |",
+             "|" + "---|" * (4 + len(tols))]
+    runs = dict.fromkeys((r["density"], r["gamma"], r["N"], r["discretization"], r["void"]) for r in hom_rows)
+    for run in runs:
+        at = {r["tol"]: r for r in hom_rows if (r["density"], r["gamma"], r["N"], r["discretization"], r["void"]) == run}
+        cells = [f"{at[t]['error']:.2g} / {at[t]['iterations']} / {at[t]['wall_s']:.3g}"
+                 + ("" if at[t]["converged"] else " (n.r.)") if t in at else "–" for t in tols]
+        lines.append(f"| ρ={run[0]} γ={run[1]} | {run[2]} | {run[3]} | {run[4]:g} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def report(size_name: str, size: dict, hom_rows, fem_rows, rve_rows, beam_rows, tripod_rows) -> str:
     """The markdown "what to pick" report (what_to_pick.md)."""
     foam_groups = groups_by(hom_rows, ("density", "gamma"), size["foams"], lambda d, g: f"ρ={d} γ={g}")
@@ -457,6 +548,9 @@ def report(size_name: str, size: dict, hom_rows, fem_rows, rve_rows, beam_rows, 
         "## FFT homogenization (max relative error over E1, E2, E3, G23, G13, G12 ≥ 1 % of the largest)", "",
         what_to_pick(foam_groups, lambda r: f"N = {r['N']}, {r['discretization']}, void {r['void']:g}, "
                                             f"tol {r['tol']:g}"), "",
+        "Every run: error / iterations (six load cases) / wall s at each tolerance; \"–\" where the run's tol was "
+        "looser, \"(n.r.)\" where the run stopped at maxiter before reaching it.", "",
+        fft_table(size, hom_rows), "",
         "## FEM RVE cross-check of the FFT reference (zero void; difference (X_fem − X_ref)/|X_ref|)", "",
         "| foam | FEM | tets | dofs | solid | " + " | ".join(f"Δ{k}" for k in CONSTANTS) + " | wall s |",
         "|" + "---|" * (6 + len(CONSTANTS)),
@@ -467,8 +561,10 @@ def report(size_name: str, size: dict, hom_rows, fem_rows, rve_rows, beam_rows, 
             f"ρ={d} γ={g}: " + ", ".join(f"{k} {100 * r[f'{k}_fft_finest_diff']:+.1f} %" for k in CONSTANTS)
             for (d, g), r in {(r["density"], r["gamma"]): r for r in fem_rows}.items()), "",
         "## RVE size: scatter over seeds (std/mean, max over the six constants)", "",
-        "| n_cells | N | seeds | max scatter |", "|---|---|---|---|",
-        *[f"| {r['n_cells']} | {r['N']} | {r['seeds']} | {r['max_scatter']:.3f} |" for r in rve_rows], "",
+        "| foam | n_cells | N | seeds | max scatter | " + " | ".join(f"{k} mean" for k in CONSTANTS) + " |",
+        "|" + "---|" * (5 + len(CONSTANTS)),
+        *[f"| ρ={r['density']} γ={r['gamma']} | {r['n_cells']} | {r['N']} | {r['seeds']} | {r['max_scatter']:.3f} | "
+          + " | ".join(f"{r[f'{k}_mean']:.4g}" for k in CONSTANTS) + " |" for r in rve_rows], "",
         "## Beam tip sag (error against the finest P2 of the same model)", "",
         what_to_pick(beam_groups, lambda r: f"h = {r['h_mm']:g} mm ({r['tets']} tets), P{r['degree']}, "
                                             f"rtol {r['snes_rtol']:g}",
@@ -521,7 +617,8 @@ def self_checks(size: dict, hom_rows, fem_rows, beam_rows, tripod_rows) -> list[
         failures.append("non-finite FFT error with a positive-definite C")
     for density, gamma in size["foams"]:
         tight = sorted((r for r in hom_rows if (r["density"], r["gamma"]) == (density, gamma)
-                        and r["tol"] == min(size["tols"]) and r["void"] == 0.0), key=lambda r: r["N"])
+                        and r["tol"] == size["reference_tol"] and r["void"] == 0.0
+                        and r["discretization"] == "rotated"), key=lambda r: r["N"])
         if gamma == 1.0 and not tight[-1]["error"] < tight[0]["error"]:
             failures.append(f"foam {density}: N = {tight[-1]['N']} is not more accurate than N = {tight[0]['N']}")
     if not all(np.isfinite(r[k]) for r in fem_rows for k in CONSTANTS):
@@ -544,10 +641,10 @@ def main(out: Path, size_name: str, comm: MPI.Comm = MPI.COMM_WORLD) -> list[str
     size = SIZES[size_name]
     beam_rows = beam_study(comm, size)
     tripod_rows = tripod_study(comm, size)
+    studies = homogenization_study(comm, size)
     failures = []
     if comm.rank == 0:
-        hom_rows, rve_rows, references = homogenization_study(size)
-        fem_rows = fem_crosscheck(size, references)
+        hom_rows, fem_rows, rve_rows = studies
         out.mkdir(parents=True, exist_ok=True)
         for name, rows in (("homogenization", hom_rows), ("fem_crosscheck", fem_rows), ("rve_size", rve_rows),
                            ("beam", beam_rows), ("tripod", tripod_rows)):
@@ -572,10 +669,12 @@ def main(out: Path, size_name: str, comm: MPI.Comm = MPI.COMM_WORLD) -> list[str
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description="Speed ↔ accuracy study: FFT homogenization, beam, Tripod case B.")
     parser.add_argument("--out", type=Path, required=True, help="output directory")
-    parser.add_argument("--ci", action="store_true", help="tiny, fast sizes (seconds) instead of the default study")
+    parser.add_argument("--size", choices=sorted(SIZES), default="default",
+                        help="study size: ci (seconds), default (~10 min serial), full (the issue's grid, hours)")
+    parser.add_argument("--ci", action="store_const", const="ci", dest="size", help="same as --size ci")
     args = parser.parse_args()
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    failed = main(args.out, "ci" if args.ci else "default")
+    failed = main(args.out, args.size)
     if MPI.COMM_WORLD.rank == 0:
         print("checks:", "; ".join(failed) if failed else "all passed")
     sys.exit(1 if failed else 0)
