@@ -53,6 +53,7 @@ from __future__ import annotations
 import argparse
 import csv
 import itertools
+import json
 import os
 import sys
 import time
@@ -168,11 +169,13 @@ def study_jobs(size: dict) -> list[dict]:
     return jobs
 
 
-def run_jobs(comm: MPI.Comm, size: dict, jobs: list[dict]) -> list[dict] | None:
+def run_jobs(comm: MPI.Comm, size: dict, jobs: list[dict], store: Path, resume: bool) -> list[dict] | None:
     """Run the jobs spread over the ranks (greedily, by estimated cost); rank 0 gets the rows, others None.
 
     Each rank runs its jobs one after the other on one thread (`threads=1`, MPI.COMM_SELF), so that wall times do
-    not depend on how many ranks share the machine's cores.
+    not depend on how many ranks share the machine's cores. Each job's rows are written to ``store`` as it
+    finishes (a JSON file named by the job); with ``resume`` a job whose file exists is read instead of rerun, so
+    an interrupted multi-hour batch loses at most the jobs under way.
     """
     load, mine = np.zeros(comm.size), []
     for i in sorted(range(len(jobs)), key=lambda i: -jobs[i]["cost"]):
@@ -181,7 +184,16 @@ def run_jobs(comm: MPI.Comm, size: dict, jobs: list[dict]) -> list[dict] | None:
         if rank == comm.rank:
             mine.append(i)
     cache: dict[tuple, Any] = {}
-    done = {i: run_job(size, jobs[i], cache) for i in sorted(mine)}
+    store.mkdir(parents=True, exist_ok=True)
+    done = {}
+    for i in sorted(mine):
+        name = "_".join(f"{k}={v}" for k, v in jobs[i].items() if k != "cost")
+        path = store / f"{name}.json"
+        if resume and path.exists():
+            done[i] = json.loads(path.read_text())
+        else:
+            done[i] = run_job(size, jobs[i], cache)
+            write_text(path, json.dumps(done[i], default=lambda x: x.item()))
     gathered = comm.gather(done, root=0)
     if comm.rank != 0:
         return None
@@ -194,7 +206,7 @@ def run_job(size: dict, job: dict, cache: dict) -> list[dict]:
     from homogenization.fem import homogenize_fem
     from homogenization.fft import homogenize_fft
     from homogenization.tensors import InadmissibleMaterialError, isotropic_voigt
-    from meshes.foam import VoronoiFoam
+    from meshes.foam import FoamParameterError, VoronoiFoam
     from meshes.rve import SOLID, VOID, mesh_rve
 
     n_cells, seed = job.get("n_cells", size["n_cells"]), job.get("seed", 1)
@@ -213,7 +225,11 @@ def run_job(size: dict, job: dict, cache: dict) -> list[dict]:
             return np.full(len(CONSTANTS), np.nan)
 
     if job["kind"] == "fem":
-        rve = mesh_rve(foam, 1.0 / job["n"], MPI.COMM_SELF)
+        try:
+            rve = mesh_rve(foam, 1.0 / job["n"], MPI.COMM_SELF)
+        except FoamParameterError as error:   # h too coarse for this foam's struts: reported, not run
+            print(f"FEM RVE foam {job['density']} γ={job['gamma']} h=1/{job['n']}: {error}", flush=True)
+            return [{**common, "h": f"1/{job['n']}", "failure": str(error)}]
         rows = []
         for degree in size["fem_degrees"]:
             r = homogenize_fem(rve.mesh, rve.cell_tags, {SOLID: solid, VOID: np.zeros((6, 6))}, degree=degree,
@@ -249,7 +265,7 @@ def run_job(size: dict, job: dict, cache: dict) -> list[dict]:
     return rows
 
 
-def homogenization_study(comm: MPI.Comm, size: dict) -> tuple[list[dict], list[dict], list[dict]] | None:
+def homogenization_study(comm: MPI.Comm, size: dict, store: Path, resume: bool = False) -> tuple[list[dict], list[dict], list[dict]] | None:
     """Rows of the FFT resolution study, of the FEM cross-check and of the RVE-size study (rank 0; None elsewhere).
 
     Per foam the FFT reference is the Richardson extrapolation of the rotated, zero-void runs at
@@ -257,7 +273,7 @@ def homogenization_study(comm: MPI.Comm, size: dict) -> tuple[list[dict], list[d
     ``{X}_ref``, each FEM row ``{X}_diff = (X_fem − X_ref)/|X_ref|``, ``{X}_fft_finest_diff`` (the same for
     X(N₂)) and ``max_diff``; each RVE row (n_cells, N) the mean and scatter (std/mean) over the seeds.
     """
-    rows = run_jobs(comm, size, study_jobs(size))
+    rows = run_jobs(comm, size, study_jobs(size), store, resume)
     if rows is None:
         return None
     n1, n2 = size["reference"]
@@ -276,6 +292,8 @@ def homogenization_study(comm: MPI.Comm, size: dict) -> tuple[list[dict], list[d
             if r["kind"] == "fft":
                 r["error"] = relative_error(values, reference) if np.all(np.isfinite(values)) else np.inf
                 hom_rows.append({**r, **{f"{k}_ref": x for k, x in zip(CONSTANTS, reference)}})
+            elif r["kind"] == "fem" and r.get("failure"):
+                fem_rows.append(r)
             elif r["kind"] == "fem":
                 fem_rows.append({**r, "max_diff": relative_error(values, reference),
                                  **{f"{k}_ref": x for k, x in zip(CONSTANTS, reference)},
@@ -556,10 +574,12 @@ def report(size_name: str, size: dict, hom_rows, fem_rows, rve_rows, beam_rows, 
         "|" + "---|" * (6 + len(CONSTANTS)),
         *[f"| ρ={r['density']} γ={r['gamma']} | P{r['degree']}, h = {r['h']} | {r['tets']} | {r['dofs']} | "
           f"{r['solid_fraction']:.4f} | " + " | ".join(f"{100 * r[f'{k}_diff']:+.1f} %" for k in CONSTANTS)
-          + f" | {r['wall_s']:.1f} |" for r in fem_rows], "",
+          + f" | {r['wall_s']:.1f} |" for r in fem_rows if not r.get("failure")], "",
+        *[f"Not meshed: ρ={r['density']} γ={r['gamma']} h = {r['h']}: {r['failure']}" for r in fem_rows
+          if r.get("failure")], "",
         "Finest FFT (no extrapolation) vs the reference: " + "; ".join(
             f"ρ={d} γ={g}: " + ", ".join(f"{k} {100 * r[f'{k}_fft_finest_diff']:+.1f} %" for k in CONSTANTS)
-            for (d, g), r in {(r["density"], r["gamma"]): r for r in fem_rows}.items()), "",
+            for (d, g), r in {(r["density"], r["gamma"]): r for r in fem_rows if not r.get("failure")}.items()), "",
         "## RVE size: scatter over seeds (std/mean, max over the six constants)", "",
         "| foam | n_cells | N | seeds | max scatter | " + " | ".join(f"{k} mean" for k in CONSTANTS) + " |",
         "|" + "---|" * (5 + len(CONSTANTS)),
@@ -621,6 +641,7 @@ def self_checks(size: dict, hom_rows, fem_rows, beam_rows, tripod_rows) -> list[
                         and r["discretization"] == "rotated"), key=lambda r: r["N"])
         if gamma == 1.0 and not tight[-1]["error"] < tight[0]["error"]:
             failures.append(f"foam {density}: N = {tight[-1]['N']} is not more accurate than N = {tight[0]['N']}")
+    fem_rows = [r for r in fem_rows if not r.get("failure")]   # mesh sizes the foam refuses (reported)
     if not all(np.isfinite(r[k]) for r in fem_rows for k in CONSTANTS):
         failures.append("non-finite FEM RVE constant")
     for p1 in (r for r in fem_rows if r["degree"] == 1):
@@ -636,12 +657,12 @@ def self_checks(size: dict, hom_rows, fem_rows, beam_rows, tripod_rows) -> list[
     return failures
 
 
-def main(out: Path, size_name: str, comm: MPI.Comm = MPI.COMM_WORLD) -> list[str]:
+def main(out: Path, size_name: str, comm: MPI.Comm = MPI.COMM_WORLD, resume: bool = False) -> list[str]:
     """Run the studies; write outputs on rank 0; return the failed checks (empty when all pass)."""
     size = SIZES[size_name]
     beam_rows = beam_study(comm, size)
     tripod_rows = tripod_study(comm, size)
-    studies = homogenization_study(comm, size)
+    studies = homogenization_study(comm, size, out / "jobs", resume)
     failures = []
     if comm.rank == 0:
         hom_rows, fem_rows, rve_rows = studies
@@ -672,9 +693,11 @@ if __name__ == "__main__":
     parser.add_argument("--size", choices=sorted(SIZES), default="default",
                         help="study size: ci (seconds), default (~10 min serial), full (the issue's grid, hours)")
     parser.add_argument("--ci", action="store_const", const="ci", dest="size", help="same as --size ci")
+    parser.add_argument("--resume", action="store_true",
+                        help="reuse the homogenization jobs already in OUT/jobs (an interrupted run) instead of rerunning")
     args = parser.parse_args()
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    failed = main(args.out, args.size)
+    failed = main(args.out, args.size, resume=args.resume)
     if MPI.COMM_WORLD.rank == 0:
         print("checks:", "; ".join(failed) if failed else "all passed")
     sys.exit(1 if failed else 0)
