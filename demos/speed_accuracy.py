@@ -236,8 +236,11 @@ def run_job(size: dict, job: dict, cache: dict) -> list[dict]:
                                comm=MPI.COMM_SELF)
             rows.append({**common, "h": f"1/{job['n']}", "tets": rve.n_elements, "degree": degree,
                          "dofs": r.info["n_dofs"], "solid_fraction": r.info["volume_fractions"][SOLID],
-                         "mesh_s": rve.meshing_s, "wall_s": r.wall_s,
-                         **dict(zip(CONSTANTS, constants_of(r.C))), **{f"C{j + 1}{j + 1}": r.C[j, j] for j in range(6)}})
+                         "mesh_s": rve.meshing_s, "wall_s": r.wall_s, **{f"C{j + 1}{j + 1}": r.C[j, j] for j in range(6)}})
+            try:
+                rows[-1].update(zip(CONSTANTS, constants_of(r.C)))
+            except InadmissibleMaterialError as error:   # the meshed solid does not percolate at this h
+                rows[-1]["failure"] = f"P{degree}: {error}"
             print(f"FEM RVE foam {job['density']} γ={job['gamma']} h=1/{job['n']} ({rve.n_elements} tets) P{degree}: "
                   f"solid {rows[-1]['solid_fraction']:.4f}, {r.wall_s:.1f} s", flush=True)
         return rows
@@ -288,7 +291,7 @@ def homogenization_study(comm: MPI.Comm, size: dict, store: Path, resume: bool =
 
         finest, reference = at(n2), richardson(at(n1), at(n2), n2 / n1)
         for r in foam_rows:
-            values = np.array([r[k] for k in CONSTANTS])
+            values = np.array([r.get(k, np.nan) for k in CONSTANTS])
             if r["kind"] == "fft":
                 r["error"] = relative_error(values, reference) if np.all(np.isfinite(values)) else np.inf
                 hom_rows.append({**r, **{f"{k}_ref": x for k, x in zip(CONSTANTS, reference)}})
@@ -575,7 +578,7 @@ def report(size_name: str, size: dict, hom_rows, fem_rows, rve_rows, beam_rows, 
         *[f"| ρ={r['density']} γ={r['gamma']} | P{r['degree']}, h = {r['h']} | {r['tets']} | {r['dofs']} | "
           f"{r['solid_fraction']:.4f} | " + " | ".join(f"{100 * r[f'{k}_diff']:+.1f} %" for k in CONSTANTS)
           + f" | {r['wall_s']:.1f} |" for r in fem_rows if not r.get("failure")], "",
-        *[f"Not meshed: ρ={r['density']} γ={r['gamma']} h = {r['h']}: {r['failure']}" for r in fem_rows
+        *[f"Not used: ρ={r['density']} γ={r['gamma']} h = {r['h']}: {r['failure']}" for r in fem_rows
           if r.get("failure")], "",
         "Finest FFT (no extrapolation) vs the reference: " + "; ".join(
             f"ρ={d} γ={g}: " + ", ".join(f"{k} {100 * r[f'{k}_fft_finest_diff']:+.1f} %" for k in CONSTANTS)
@@ -641,7 +644,7 @@ def self_checks(size: dict, hom_rows, fem_rows, beam_rows, tripod_rows) -> list[
                         and r["discretization"] == "rotated"), key=lambda r: r["N"])
         if gamma == 1.0 and not tight[-1]["error"] < tight[0]["error"]:
             failures.append(f"foam {density}: N = {tight[-1]['N']} is not more accurate than N = {tight[0]['N']}")
-    fem_rows = [r for r in fem_rows if not r.get("failure")]   # mesh sizes the foam refuses (reported)
+    fem_rows = [r for r in fem_rows if not r.get("failure")]   # refused or non-percolating meshes (reported)
     if not all(np.isfinite(r[k]) for r in fem_rows for k in CONSTANTS):
         failures.append("non-finite FEM RVE constant")
     for p1 in (r for r in fem_rows if r["degree"] == 1):
