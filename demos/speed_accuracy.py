@@ -564,6 +564,7 @@ def report(size_name: str, size: dict, hom_rows, fem_rows, rve_rows, beam_rows, 
     tripod_groups = groups_by(tripod_rows, ("model",), [(m,) for m in size["tripod_models"]], str)
     beam_ref = {m: finest_p2(g, size["degrees"]) for m, g in beam_groups}
     tripod_ref = {m: finest_p2([r for r in g if not r["failure"]], size["tripod_degrees"]) for m, g in tripod_groups}
+    fem_ok = [r for r in fem_rows if not r.get("failure")]   # refused or non-percolating meshes are listed apart
     return "\n".join([
         "# What to pick", "", f"Study size `{size_name}`; errors are relative (see the demo's header).", "",
         "## FFT homogenization (max relative error over E1, E2, E3, G23, G13, G12 ≥ 1 % of the largest)", "",
@@ -577,12 +578,12 @@ def report(size_name: str, size: dict, hom_rows, fem_rows, rve_rows, beam_rows, 
         "|" + "---|" * (6 + len(CONSTANTS)),
         *[f"| ρ={r['density']} γ={r['gamma']} | P{r['degree']}, h = {r['h']} | {r['tets']} | {r['dofs']} | "
           f"{r['solid_fraction']:.4f} | " + " | ".join(f"{100 * r[f'{k}_diff']:+.1f} %" for k in CONSTANTS)
-          + f" | {r['wall_s']:.1f} |" for r in fem_rows if not r.get("failure")], "",
+          + f" | {r['wall_s']:.1f} |" for r in fem_ok], "",
         *[f"Not used: ρ={r['density']} γ={r['gamma']} h = {r['h']}: {r['failure']}" for r in fem_rows
           if r.get("failure")], "",
         "Finest FFT (no extrapolation) vs the reference: " + "; ".join(
             f"ρ={d} γ={g}: " + ", ".join(f"{k} {100 * r[f'{k}_fft_finest_diff']:+.1f} %" for k in CONSTANTS)
-            for (d, g), r in {(r["density"], r["gamma"]): r for r in fem_rows if not r.get("failure")}.items()), "",
+            for (d, g), r in {(r["density"], r["gamma"]): r for r in fem_ok}.items()), "",
         "## RVE size: scatter over seeds (std/mean, max over the six constants)", "",
         "| foam | n_cells | N | seeds | max scatter | " + " | ".join(f"{k} mean" for k in CONSTANTS) + " |",
         "|" + "---|" * (5 + len(CONSTANTS)),
