@@ -17,6 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 from dolfinx import fem
 
+from foambase.errors import InputError
+
 __all__ = ["MotionBC", "RigidMotion", "rotation_matrix"]
 
 
@@ -25,7 +27,7 @@ def rotation_matrix(axis: Sequence[float], angle: float) -> np.ndarray:
     n = np.asarray(axis, dtype=float)
     norm = np.linalg.norm(n)
     if n.shape != (3,) or not np.isfinite(norm) or norm == 0.0:
-        raise ValueError(f"a rotation axis must be a finite non-zero 3-vector, got {np.asarray(axis).tolist()}")
+        raise InputError(f"a rotation axis must be a finite non-zero 3-vector, got {np.asarray(axis).tolist()}")
     n = n / norm
     K = np.array([[0.0, -n[2], n[1]], [n[2], 0.0, -n[0]], [-n[1], n[0], 0.0]])
     return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)
@@ -58,7 +60,7 @@ class RigidMotion:
     def __post_init__(self):
         rotation_matrix(self.axis, 0.0)  # validates the axis
         if np.asarray(self.point, dtype=float).shape != (3,):
-            raise ValueError(f"motion {self.name!r}: point must be a 3-vector, got {self.point}")
+            raise InputError(f"motion {self.name!r}: point must be a 3-vector, got {self.point}")
 
     def displacement(self, X: np.ndarray, angle: float, translation: Sequence[float]) -> np.ndarray:
         """``u(X) = R(θ)(X - p) + p + t - X`` for reference points ``X`` of shape (n, 3)."""
@@ -82,7 +84,7 @@ class MotionBC:
         self.dofs = fem.locate_dofs_topological(V, dim, np.asarray(motion.entities, dtype=np.int32))
         n_owned = V.dofmap.index_map.size_local
         if mesh.comm.allreduce(int(np.sum(self.dofs < n_owned))) == 0:
-            raise ValueError(f"motion {motion.name!r} selects no degree of freedom (empty region?)")
+            raise InputError(f"motion {motion.name!r} selects no degree of freedom (empty region?)")
         self._X = V.tabulate_dof_coordinates()[self.dofs]
         self.value = fem.Function(V, name=f"motion_{motion.name}")
         self.bc = fem.dirichletbc(self.value, self.dofs)

@@ -37,6 +37,7 @@ from dolfinx.mesh import Mesh, MeshTagsMetaClass
 
 from fenicsfoam.materials import Isotropic, Material, TransverseIsotropic
 from fenicsfoam.orientation import UNTAGGED, cell_function, owned_cell_tags
+from foambase.errors import InputError
 
 __all__ = [
     "MODELS",
@@ -92,14 +93,14 @@ class MaterialField:
         """One material per cell tag; every cell must carry a tag present in ``materials``."""
         for tag, material in materials.items():
             if not isinstance(material, (Isotropic, TransverseIsotropic)):
-                raise TypeError(f"region {tag}: expected Isotropic or TransverseIsotropic, got {material!r}")
+                raise InputError(f"region {tag}: expected Isotropic or TransverseIsotropic, got {material!r}")
         tags = owned_cell_tags(mesh, cell_tags)
         unknown = ~np.isin(tags, list(materials))
         n_unknown = mesh.comm.allreduce(int(unknown.sum()))
         if n_unknown:
             local = {("untagged" if t == UNTAGGED else int(t)) for t in np.unique(tags[unknown])}
             missing = sorted(set().union(*mesh.comm.allgather(local)), key=str)
-            raise ValueError(f"{n_unknown} cell(s) have tags {missing} without a material "
+            raise InputError(f"{n_unknown} cell(s) have tags {missing} without a material "
                              f"(materials given for tags {sorted(materials)})")
         return cls._build(mesh, dict(materials), tags)
 
@@ -148,7 +149,7 @@ def quadratic_energy(e: ufl.core.expr.Expr, material: MaterialField, orientation
     if material.isotropic:
         return 0.5 * m["lmbda"] * ufl.tr(e) ** 2 + m["mu"] * ufl.inner(e, e)
     if orientation is None:
-        raise ValueError("a transversely isotropic material needs an orientation field (the unit l axis per cell)")
+        raise InputError("a transversely isotropic material needs an orientation field (the unit l axis per cell)")
     A = ufl.outer(orientation, orientation)
     tr_Ae = ufl.inner(A, e)
     return (0.5 * m["lmbda"] * ufl.tr(e) ** 2 + m["mu_T"] * ufl.inner(e, e) + m["alpha"] * tr_Ae * ufl.tr(e)
@@ -225,7 +226,7 @@ class PolarRotation:
 # --------------------------------------------------------------------------------------------------
 def _check_model(model: str) -> None:
     if model not in MODELS:
-        raise ValueError(f"unknown model {model!r}; valid models are {', '.join(MODELS)}")
+        raise InputError(f"unknown model {model!r}; valid models are {', '.join(MODELS)}")
 
 
 def _strain(model: str, u: fem.Function, rotation: PolarRotation | None) -> ufl.core.expr.Expr:
@@ -237,7 +238,7 @@ def _strain(model: str, u: fem.Function, rotation: PolarRotation | None) -> ufl.
     if model == "svk":
         return green_lagrange(F)
     if rotation is None:
-        raise ValueError("the corotational model needs a PolarRotation of the displacement")
+        raise InputError("the corotational model needs a PolarRotation of the displacement")
     return ufl.sym(rotation.R.T * F) - ufl.Identity(len(u))
 
 

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 from scipy.interpolate import PchipInterpolator
 
+from foambase.errors import InputError
 from homogenization.tensors import (
     InadmissibleMaterialError,
     check_isotropic,
@@ -236,18 +237,18 @@ def foam_material(density: float, gamma: float, E_solid: float, nu_solid: float,
     from homogenization.tables import NU_SOLID, TABLE_CSV
 
     if fit not in FOAM_FITS:
-        raise ValueError(f"fit must be one of {FOAM_FITS}, got {fit!r}")
+        raise InputError(f"fit must be one of {FOAM_FITS}, got {fit!r}")
     if not (np.isfinite(E_solid) and E_solid > 0):
         raise InadmissibleMaterialError(f"E_solid must be > 0 Pa, got {E_solid!r}")
     if not np.isclose(nu_solid, NU_SOLID, rtol=0, atol=1e-12):
-        raise ValueError(f"nu_solid = {nu_solid!r}: the foam table was computed for a solid with nu = {NU_SOLID} "
+        raise InputError(f"nu_solid = {nu_solid!r}: the foam table was computed for a solid with nu = {NU_SOLID} "
                          "(moduli scale with E_solid, Poisson's ratio cannot be rescaled); recompute the table "
                          "(demos/homogenization_table.py) for another solid")
     data = _foam_table(str(Path(table) if table is not None else TABLE_CSV))
     for name, value, nodes in (("density", density, data["density"]), ("gamma", gamma, data["gamma"])):
         lo, hi = float(nodes.min()), float(nodes.max())
         if not (np.isfinite(value) and lo - 1e-12 <= value <= hi + 1e-12):
-            raise ValueError(f"{name} = {value!r} is outside the tabulated range [{lo:g}, {hi:g}] of the foam table")
+            raise InputError(f"{name} = {value!r} is outside the tabulated range [{lo:g}, {hi:g}] of the foam table")
 
     def q(name: str) -> float:
         return _interpolate(data, name, density, gamma)

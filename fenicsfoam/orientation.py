@@ -20,6 +20,8 @@ import numpy as np
 from dolfinx import fem
 from dolfinx.mesh import Mesh, MeshTagsMetaClass, compute_midpoints
 
+from foambase.errors import InputError
+
 __all__ = ["OrientationError", "cell_function", "from_callable", "owned_cell_tags", "per_tag", "uniform"]
 
 logger = logging.getLogger(__name__)
@@ -28,7 +30,7 @@ logger = logging.getLogger(__name__)
 UNTAGGED = np.iinfo(np.int32).min
 
 
-class OrientationError(ValueError):
+class OrientationError(InputError):
     """An orientation field cannot be built: zero or non-finite directions, or cells without a direction."""
 
 
@@ -53,7 +55,7 @@ def cell_function(mesh: Mesh, values: np.ndarray, name: str | None = None) -> fe
     values = np.asarray(values, dtype=float)
     n = _num_owned_cells(mesh)
     if values.shape[0] != n or values.ndim not in (1, 2):
-        raise ValueError(f"expected values of shape ({n},) or ({n}, k) for the {n} owned cells, got {values.shape}")
+        raise InputError(f"expected values of shape ({n},) or ({n}, k) for the {n} owned cells, got {values.shape}")
     if values.ndim == 1:
         V = fem.FunctionSpace(mesh, ("DG", 0))
     else:
@@ -70,7 +72,7 @@ def owned_cell_tags(mesh: Mesh, cell_tags: MeshTagsMetaClass) -> np.ndarray:
     """The tag of every cell this rank owns, :data:`UNTAGGED` where ``cell_tags`` has none."""
     tdim = mesh.topology.dim
     if cell_tags.dim != tdim:
-        raise ValueError(f"cell_tags must tag cells (dimension {tdim}), got entities of dimension {cell_tags.dim}")
+        raise InputError(f"cell_tags must tag cells (dimension {tdim}), got entities of dimension {cell_tags.dim}")
     n = _num_owned_cells(mesh)
     tags = np.full(n, UNTAGGED, dtype=np.int64)
     owned = cell_tags.indices < n

@@ -27,6 +27,8 @@ import numpy as np
 import ufl
 from mpi4py import MPI
 
+from foambase.errors import InputError
+
 __all__ = [
     "CenterHeight",
     "CenterRotation",
@@ -47,19 +49,19 @@ def _as_tag_tuple(tags: Tags) -> tuple[int, ...]:
     """``tags`` as a non-empty tuple of ints (a single int allowed)."""
     values = (tags,) if isinstance(tags, int | np.integer) else tuple(tags)
     if not values or not all(isinstance(t, int | np.integer) for t in values):
-        raise ValueError(f"tags must be an int or a non-empty sequence of ints, got {tags!r}")
+        raise InputError(f"tags must be an int or a non-empty sequence of ints, got {tags!r}")
     return tuple(int(t) for t in values)
 
 
 def _check_tags(
     meshtags: dolfinx.mesh.MeshTagsMetaClass, tags: Tags, mesh: dolfinx.mesh.Mesh, dim: int, kind: str
 ) -> tuple[int, ...]:
-    """Raise ``ValueError`` unless ``meshtags`` marks ``dim``-entities of ``mesh`` and each tag marks some entity."""
+    """Raise ``InputError`` unless ``meshtags`` marks ``dim``-entities of ``mesh`` and each tag marks some entity."""
     tags = _as_tag_tuple(tags)
     if meshtags.mesh is not mesh._mesh:
-        raise ValueError(f"the {kind} tags belong to another mesh than the displacement's")
+        raise InputError(f"the {kind} tags belong to another mesh than the displacement's")
     if meshtags.dim != dim:
-        raise ValueError(f"{kind} tags must mark entities of dimension {dim}, got tags of dimension {meshtags.dim}")
+        raise InputError(f"{kind} tags must mark entities of dimension {dim}, got tags of dimension {meshtags.dim}")
     comm = mesh.comm
     counts = np.array([meshtags.find(tag).size for tag in tags], dtype=np.int64)
     total = np.empty_like(counts)
@@ -67,24 +69,24 @@ def _check_tags(
     missing = [tag for tag, n in zip(tags, total) if n == 0]
     if missing:
         available = sorted(set().union(*comm.allgather(set(np.unique(meshtags.values).tolist()))))
-        raise ValueError(f"{kind} tag(s) {missing} mark no entity of the mesh; available {kind} tags: {available}")
+        raise InputError(f"{kind} tag(s) {missing} mark no entity of the mesh; available {kind} tags: {available}")
     return tags
 
 
 def _check_displacement_space(V: dolfinx.fem.FunctionSpace) -> None:
-    """Raise ``ValueError`` unless ``V`` is a 3-component Lagrange space on a 3D mesh."""
+    """Raise ``InputError`` unless ``V`` is a 3-component Lagrange space on a 3D mesh."""
     element = V.ufl_element()
     if element.family() not in ("Lagrange", "Q") or V.dofmap.index_map_bs != 3 or V.mesh.geometry.dim != 3:
-        raise ValueError(
+        raise InputError(
             f"probes need a 3D vector Lagrange displacement space, got {element} with block size "
             f"{V.dofmap.index_map_bs} on a mesh of geometric dimension {V.mesh.geometry.dim}"
         )
 
 
 def _check_same_space(u: dolfinx.fem.Function, V: dolfinx.fem.FunctionSpace) -> None:
-    """Raise ``ValueError`` unless ``u`` lives on the mesh and element of the probe's space ``V``."""
+    """Raise ``InputError`` unless ``u`` lives on the mesh and element of the probe's space ``V``."""
     if u.function_space.mesh is not V.mesh or u.function_space.ufl_element() != V.ufl_element():
-        raise ValueError(f"displacement in {u.function_space.ufl_element()} on another mesh or element than "
+        raise InputError(f"displacement in {u.function_space.ufl_element()} on another mesh or element than "
                          f"the probe's {V.ufl_element()}")
 
 
@@ -136,12 +138,12 @@ class TipDeflection(_ScalarProbe):
         tags = _check_tags(facet_tags, tip_tag, V.mesh, tdim - 1, "facet")
         d = np.asarray(direction, dtype=float)
         if d.shape != (3,) or not np.all(np.isfinite(d)) or np.linalg.norm(d) == 0:
-            raise ValueError(f"direction must be a non-zero finite 3-vector, got {direction!r}")
+            raise InputError(f"direction must be a non-zero finite 3-vector, got {direction!r}")
         d_hat = ufl.as_vector((d / np.linalg.norm(d)).tolist())
         ds = ufl.Measure("ds", domain=V.mesh, subdomain_data=facet_tags, subdomain_id=tags)
         super().__init__(V, lambda u: ufl.inner(u, d_hat), ds)
         if self.size <= 0:
-            raise ValueError(f"facet tag {tip_tag} has zero area on the exterior boundary: not a boundary face")
+            raise InputError(f"facet tag {tip_tag} has zero area on the exterior boundary: not a boundary face")
 
 
 class CenterHeight(_ScalarProbe):
@@ -189,7 +191,7 @@ def twist_angle(R: np.ndarray) -> float:
     """
     s, c = R[1, 0] - R[0, 1], R[0, 0] + R[1, 1]
     if math.hypot(s, c) < 1e-10:
-        raise ValueError("twist about z undefined: the rotation turns e_z upside down (swing of 180°)")
+        raise InputError("twist about z undefined: the rotation turns e_z upside down (swing of 180°)")
     return math.atan2(s, c)
 
 
@@ -238,7 +240,7 @@ class CenterRotation:
         self._dX = X - self._X_mean
         spread = self._allreduce(self._dX.T @ self._dX)
         if np.linalg.matrix_rank(spread, tol=1e-10 * np.trace(spread)) < 2:
-            raise ValueError(f"the {self.n_nodes} nodes of cell tag(s) {list(tags)} are collinear: rotation undefined")
+            raise InputError(f"the {self.n_nodes} nodes of cell tag(s) {list(tags)} are collinear: rotation undefined")
         self._V = V
 
     def _allreduce(self, local: np.ndarray) -> np.ndarray:

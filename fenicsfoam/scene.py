@@ -58,6 +58,8 @@ from typing import Any
 
 import numpy as np
 
+from foambase.errors import InputError
+
 __all__ = [
     "PROBES",
     "Scene",
@@ -91,7 +93,7 @@ HANDEDNESS = {"counterclockwise": 1.0, "clockwise": -1.0}
 PETSC_PREFIX = "scene_"
 
 
-class SceneError(ValueError):
+class SceneError(InputError):
     """A scene is invalid: the message names the key path and what would be valid."""
 
 

@@ -53,6 +53,7 @@ from fenicsfoam.constitutive import (
     first_piola_kirchhoff,
 )
 from fenicsfoam.stability import EllipticityCheck, ellipticity_margin
+from foambase.errors import InputError, NotConvergedError
 
 __all__ = ["ConvergenceError", "ElasticityProblem", "LoadState", "LoadStep", "StepStats", "rigid_body_modes"]
 
@@ -62,7 +63,7 @@ _SNES_REASONS = {getattr(PETSc.SNES.ConvergedReason, name): name for name in dir
                  if name.isupper() and name != "ITERATING"}
 
 
-class ConvergenceError(RuntimeError):
+class ConvergenceError(NotConvergedError):
     """A load step failed after the maximum number of cut-backs; ``u`` keeps the last converged state.
 
     Attributes
@@ -122,7 +123,7 @@ class LoadStep:
 
     def __post_init__(self):
         if not (isinstance(self.increments, int) and self.increments >= 1):
-            raise ValueError(f"step {self.label!r}: increments must be an integer >= 1, got {self.increments!r}")
+            raise InputError(f"step {self.label!r}: increments must be an integer >= 1, got {self.increments!r}")
 
 
 @dataclass
@@ -157,7 +158,7 @@ class LoadState:
         """The state at the end of ``step``: its values where it gives them, the current ones elsewhere."""
         for name in (*step.angles, *step.translations):
             if name not in self.angles:
-                raise ValueError(f"step {step.label!r} moves {name!r}, which is not a motion of the problem "
+                raise InputError(f"step {step.label!r} moves {name!r}, which is not a motion of the problem "
                                  f"(motions: {sorted(self.angles)})")
         return LoadState(gravity=self.gravity if step.gravity is None else float(step.gravity),
                       angles={**self.angles, **{k: float(v) for k, v in step.angles.items()}},
@@ -236,18 +237,18 @@ class ElasticityProblem:
                  options: Mapping[str, Any] | None = None, quadrature_degree: int | None = None,
                  max_cutbacks: int = 6):
         if model not in MODELS:
-            raise ValueError(f"unknown model {model!r}; valid models are {', '.join(MODELS)}")
+            raise InputError(f"unknown model {model!r}; valid models are {', '.join(MODELS)}")
         if degree not in (1, 2):
-            raise ValueError(f"degree must be 1 or 2, got {degree!r}")
+            raise InputError(f"degree must be 1 or 2, got {degree!r}")
         if material.isotropic and orientation is not None:
-            raise ValueError("every region is isotropic: pass orientation=None (no orientation field is needed)")
+            raise InputError("every region is isotropic: pass orientation=None (no orientation field is needed)")
         if not material.isotropic and orientation is None:
-            raise ValueError("some region is transversely isotropic: an orientation field is required")
+            raise InputError("some region is transversely isotropic: an orientation field is required")
         names = [m.name for m in motions]
         if len(set(names)) != len(names):
-            raise ValueError(f"motion names must be distinct, got {names}")
+            raise InputError(f"motion names must be distinct, got {names}")
         if not prefix or not prefix.endswith("_"):
-            raise ValueError(f"the options prefix must be non-empty and end with '_', got {prefix!r}")
+            raise InputError(f"the options prefix must be non-empty and end with '_', got {prefix!r}")
         self.model, self.degree, self.max_cutbacks = model, degree, max_cutbacks
         self.material, self.orientation = material, orientation
         self.quadrature_degree = 2 * (degree - 1) if quadrature_degree is None else quadrature_degree

@@ -42,6 +42,7 @@ from mpi4py import MPI
 
 from fenicsfoam.constitutive import corotational_rotation_tangent
 from fenicsfoam.orientation import cell_function
+from foambase.errors import InputError
 
 if TYPE_CHECKING:
     from fenicsfoam.solver import ElasticityProblem
@@ -54,7 +55,7 @@ logger = logging.getLogger(__name__)
 def hemisphere_directions(count: int) -> np.ndarray:
     """``count`` unit vectors (count, 3) spread evenly over the hemisphere ``z >= 0`` (Fibonacci lattice)."""
     if not (isinstance(count, int) and count >= 1):
-        raise ValueError(f"count must be an integer >= 1, got {count!r}")
+        raise InputError(f"count must be an integer >= 1, got {count!r}")
     k = np.arange(count) + 0.5
     z = 1.0 - k / count  # uniform in z on (0, 1): equal areas
     phi = np.pi * (3.0 - np.sqrt(5.0)) * k
@@ -124,7 +125,7 @@ def acoustic_margin(A: np.ndarray, directions: int = 256, refinements: int = 10
     """
     A = np.asarray(A, dtype=float)
     if A.ndim != 5 or A.shape[1:] != (3, 3, 3, 3):
-        raise ValueError(f"A must have shape (p, 3, 3, 3, 3), got {A.shape}")
+        raise InputError(f"A must have shape (p, 3, 3, 3, 3), got {A.shape}")
     p = A.shape[0]
     A = A.transpose(0, 1, 3, 2, 4).reshape(p, 9, 9)  # rows ik, columns jl: Q_ik(n) = A[ik, jl] n_j n_l
     samples = hemisphere_directions(directions)

@@ -27,6 +27,8 @@ import ufl
 from dolfinx import fem
 from mpi4py import MPI
 
+from foambase.errors import ComputationError, InputError
+
 __all__ = ["QUADRATIC_STRAIN_LIMIT", "SmallStrainValidity", "SmallStrainValidityError", "small_strain_validity"]
 
 logger = logging.getLogger(__name__)
@@ -35,7 +37,7 @@ logger = logging.getLogger(__name__)
 QUADRATIC_STRAIN_LIMIT = 0.05
 
 
-class SmallStrainValidityError(RuntimeError):
+class SmallStrainValidityError(ComputationError):
     """A linear (small-strain) solution outside the validity of small-strain theory."""
 
 
@@ -72,7 +74,7 @@ def small_strain_validity(u: fem.Function, limit: float = QUADRATIC_STRAIN_LIMIT
 
     """
     if not (np.isfinite(limit) and limit > 0):
-        raise ValueError(f"limit must be a positive finite strain, got {limit!r}")
+        raise InputError(f"limit must be a positive finite strain, got {limit!r}")
     mesh = u.function_space.mesh
     grad = ufl.grad(u)
     quadratic = 0.5 * grad.T * grad

@@ -59,6 +59,7 @@ from dolfinx import fem
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from foambase.errors import InputError, NotConvergedError
 from homogenization.result import LOAD_CASES, HomogenizationResult
 from homogenization.tensors import VOIGT_PAIRS, check_stiffness, voigt_to_mandel
 
@@ -130,14 +131,14 @@ def _strain(v):
 # --------------------------------------------------------------------------------------------------
 def _check_degree(degree) -> int:
     if isinstance(degree, bool) or not isinstance(degree, (int, np.integer)) or int(degree) not in DEGREES:
-        raise ValueError(f"degree must be one of {DEGREES}, got {degree!r}")
+        raise InputError(f"degree must be one of {DEGREES}, got {degree!r}")
     return int(degree)
 
 
 def _check_box(box) -> np.ndarray:
     b = np.asarray(box, dtype=float)
     if b.shape != (2, 3) or not np.all(np.isfinite(b)) or np.any(b[1] <= b[0]):
-        raise ValueError(f"box must be ((x0, y0, z0), (x1, y1, z1)) with x1 > x0 etc., got {box!r}")
+        raise InputError(f"box must be ((x0, y0, z0), (x1, y1, z1)) with x1 > x0 etc., got {box!r}")
     return b
 
 
@@ -145,34 +146,34 @@ def _owned_cell_tags(mesh, cell_tags, comm) -> np.ndarray:
     """Tag of every owned cell (raises if some cell has none); the set of tags present is checked by the caller."""
     tdim = mesh.topology.dim
     if cell_tags.dim != tdim:
-        raise ValueError(f"cell_tags must tag cells (dimension {tdim}), got tags of dimension {cell_tags.dim}")
+        raise InputError(f"cell_tags must tag cells (dimension {tdim}), got tags of dimension {cell_tags.dim}")
     n_owned = mesh.topology.index_map(tdim).size_local
     tags = np.full(n_owned, -1, dtype=np.int64)
     owned = cell_tags.indices < n_owned
     tags[cell_tags.indices[owned]] = cell_tags.values[owned]
     n_untagged = comm.allreduce(int(np.count_nonzero(tags < 0)), op=MPI.SUM)
     if n_untagged:
-        raise ValueError(f"{n_untagged} cells of the mesh have no tag in cell_tags; every cell needs a material")
+        raise InputError(f"{n_untagged} cells of the mesh have no tag in cell_tags; every cell needs a material")
     return tags
 
 
 def _check_materials(materials: Mapping[int, np.ndarray], tags_present: set[int]) -> dict[int, np.ndarray]:
     if not isinstance(materials, Mapping) or not materials:
-        raise ValueError(f"materials must be a non-empty mapping cell tag -> 6×6 Voigt stiffness, got {materials!r}")
+        raise InputError(f"materials must be a non-empty mapping cell tag -> 6×6 Voigt stiffness, got {materials!r}")
     given = {int(t) for t in materials}
     missing, unused = sorted(tags_present - given), sorted(given - tags_present)
     if missing:
-        raise ValueError(f"cell tags {missing} are in the mesh but have no material (materials has tags "
+        raise InputError(f"cell tags {missing} are in the mesh but have no material (materials has tags "
                          f"{sorted(given)}, the mesh has {sorted(tags_present)})")
     if unused:
-        raise ValueError(f"materials given for cell tags {unused} that are not in the mesh "
+        raise InputError(f"materials given for cell tags {unused} that are not in the mesh "
                          f"(the mesh has tags {sorted(tags_present)})")
     checked = {}
     for tag, C in materials.items():
         check_stiffness(C, allow_zero=True, name=f"materials[{tag}]")
         checked[int(tag)] = np.asarray(C, dtype=float)
     if all(not C.any() for C in checked.values()):
-        raise ValueError("all materials are zero: at least one phase needs a non-zero stiffness")
+        raise InputError("all materials are zero: at least one phase needs a non-zero stiffness")
     return checked
 
 
@@ -182,7 +183,7 @@ def _check_inside_box(mesh, box: np.ndarray, tol: float, comm) -> None:
     comm.Allreduce(x.min(axis=0) if len(x) else np.full(3, np.inf), lo, op=MPI.MIN)
     comm.Allreduce(x.max(axis=0) if len(x) else np.full(3, -np.inf), hi, op=MPI.MAX)
     if np.any(lo < box[0] - tol) or np.any(hi > box[1] + tol):
-        raise ValueError(f"the mesh spans [{lo.tolist()}, {hi.tolist()}], outside the periodic box "
+        raise InputError(f"the mesh spans [{lo.tolist()}, {hi.tolist()}], outside the periodic box "
                          f"[{box[0].tolist()}, {box[1].tolist()}]; pass box= to match the mesh")
 
 
@@ -249,7 +250,7 @@ def _periodic_constraint(V, box: np.ndarray, tol: float, comm):
     nodal = (np.abs(largest - 1.0) < 1e-8) & (rest < 1e-8)
     n_nodal = comm.allreduce(int(np.count_nonzero(nodal)), op=MPI.SUM)
     if n_nodal != n_upper:
-        raise ValueError(f"{n_upper - n_nodal} of the {n_upper} dofs on the upper faces of the box have no "
+        raise InputError(f"{n_upper - n_nodal} of the {n_upper} dofs on the upper faces of the box have no "
                          "node-for-node image on the lower faces; the mesh must be periodic node for node on "
                          "opposite faces of the box")
     return mpc
@@ -278,7 +279,7 @@ def _pinned_dof_bc(V, x: np.ndarray, tags, materials, box: np.ndarray, tol: floa
         best = (tuple(keys[i].astype(np.int64).tolist()), x[candidates[i]])
     found = [k for k in comm.allgather(best) if k is not None]
     if not found:
-        raise ValueError("no dof inside the box belongs to a cell with non-zero stiffness, so rigid translations "
+        raise InputError("no dof inside the box belongs to a cell with non-zero stiffness, so rigid translations "
                          "cannot be removed; refine the mesh (at least one interior node is needed)")
     point = min(found, key=lambda k: k[0])[1]
     dofs = fem.locate_dofs_geometrical(V, lambda y: np.all(np.abs(y[:3] - point[:, None]) < tol, axis=0))
@@ -361,9 +362,9 @@ def homogenize_fem(mesh: dolfinx.mesh.Mesh, cell_tags: dolfinx.mesh.MeshTagsMeta
     box = _check_box(box)
     comm = mesh.comm if comm is None else comm
     if MPI.Comm.Compare(comm, mesh.comm) not in (MPI.IDENT, MPI.CONGRUENT):
-        raise ValueError("comm must be the mesh's communicator (or congruent with it)")
+        raise InputError("comm must be the mesh's communicator (or congruent with it)")
     if mesh.geometry.dim != 3 or mesh.topology.dim != 3:
-        raise ValueError(f"a 3D volume mesh is needed, got gdim={mesh.geometry.dim}, tdim={mesh.topology.dim}")
+        raise InputError(f"a 3D volume mesh is needed, got gdim={mesh.geometry.dim}, tdim={mesh.topology.dim}")
     options = {**default_options(), **dict(petsc_options or {})}
     tol = 1e-8 * float(np.max(box[1] - box[0]))
     box_volume = float(np.prod(box[1] - box[0]))
@@ -426,8 +427,8 @@ def homogenize_fem(mesh: dolfinx.mesh.Mesh, cell_tags: dolfinx.mesh.MeshTagsMeta
         ksp.solve(b, v.vector)
         reason = ksp.getConvergedReason()
         if reason <= 0:
-            raise RuntimeError(f"RVE solve for load case {LOAD_CASES[J]} did not converge: KSP reason {reason} "
-                               f"(options {options})")
+            raise NotConvergedError(f"RVE solve for load case {LOAD_CASES[J]} did not converge: KSP reason {reason} "
+                                    f"(options {options})")
         if direct:
             A.mult(v.vector, r)
             r.aypx(-1.0, b)  # r = b - A x

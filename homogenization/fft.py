@@ -76,6 +76,7 @@ from dataclasses import dataclass
 import numpy as np
 import pyfftw
 
+from foambase.errors import InputError, NotConvergedError
 from homogenization import _native
 from homogenization.result import HomogenizationResult
 from homogenization.tensors import check_stiffness, closest_isotropic, mandel_to_voigt, voigt_to_mandel
@@ -104,7 +105,7 @@ GREEN_TO_MANDEL = np.array([2.0, 2.0, 2.0, _SQRT2, _SQRT2, _SQRT2])
 _BLOCK_VOXELS = 2**15  # voxels per block of planes: the block's temporaries stay in L2/L3 cache
 
 
-class FFTConvergenceError(RuntimeError):
+class FFTConvergenceError(NotConvergedError):
     """The FFT solver did not reach ``tol`` within ``maxiter`` (or broke down); carries the residual history."""
 
     def __init__(self, message: str, case: int, residuals: list[float]):
@@ -139,7 +140,7 @@ def wave_directions(shape: tuple[int, int, int], discretization: str = "rotated"
 
     """
     if discretization not in DISCRETIZATIONS:
-        raise ValueError(f"discretization must be one of {DISCRETIZATIONS}, got {discretization!r}")
+        raise InputError(f"discretization must be one of {DISCRETIZATIONS}, got {discretization!r}")
     N = tuple(int(s) for s in shape)
     m = [np.fft.fftfreq(N[0], 1.0 / N[0]), np.fft.fftfreq(N[1], 1.0 / N[1]), np.arange(N[2] // 2 + 1.0)]
     if N[2] % 2 == 0:
@@ -474,15 +475,15 @@ class _Workspace:
 def _check_phases(phases) -> np.ndarray:
     phases = np.asarray(phases)
     if phases.ndim != 3:
-        raise ValueError(f"phases must be a 3-D (N1, N2, N3) image of phase ids, got shape {phases.shape}")
+        raise InputError(f"phases must be a 3-D (N1, N2, N3) image of phase ids, got shape {phases.shape}")
     if min(phases.shape) < 1:
-        raise ValueError(f"phases must have at least one voxel along each axis, got shape {phases.shape}")
+        raise InputError(f"phases must have at least one voxel along each axis, got shape {phases.shape}")
     if phases.dtype == bool:
         return phases.astype(np.intp)
     if not np.issubdtype(phases.dtype, np.integer):
-        raise ValueError(f"phases must hold integer phase ids (or bool), got dtype {phases.dtype}")
+        raise InputError(f"phases must hold integer phase ids (or bool), got dtype {phases.dtype}")
     if phases.min() < 0:
-        raise ValueError(f"phase ids must be >= 0, got {int(phases.min())}")
+        raise InputError(f"phase ids must be >= 0, got {int(phases.min())}")
     return phases
 
 
@@ -493,13 +494,13 @@ def _check_materials(materials, ids) -> dict[int, np.ndarray]:
         available = dict(enumerate(materials))
     missing = [int(p) for p in ids if int(p) not in available]
     if missing:
-        raise ValueError(f"phase ids {missing} occur in the image but have no material "
+        raise InputError(f"phase ids {missing} occur in the image but have no material "
                          f"(materials given for ids {sorted(available)})")
     out = {}
     for p in map(int, ids):
         C = np.asarray(available[p], dtype=float)
         if C.shape != (6, 6):
-            raise ValueError(f"materials[{p}] must be a 6×6 Voigt stiffness, got shape {C.shape}")
+            raise InputError(f"materials[{p}] must be a 6×6 Voigt stiffness, got shape {C.shape}")
         check_stiffness(C, allow_zero=True, name=f"materials[{p}]")
         out[p] = 0.5 * (C + C.T)
     return out
@@ -512,9 +513,9 @@ def _check_macro_strains(macro_strains) -> np.ndarray:
     if E.ndim == 1:
         E = E[None]
     if E.ndim != 2 or E.shape[1] != 6 or E.shape[0] == 0:
-        raise ValueError(f"macro_strains must be (n_cases, 6) Voigt strains, got shape {np.shape(macro_strains)}")
+        raise InputError(f"macro_strains must be (n_cases, 6) Voigt strains, got shape {np.shape(macro_strains)}")
     if not np.all(np.isfinite(E)):
-        raise ValueError("macro_strains must be finite")
+        raise InputError("macro_strains must be finite")
     return E
 
 
@@ -522,7 +523,7 @@ def _check_checkpoints(checkpoints, tol: float) -> list[float]:
     marks = sorted({float(t) for t in checkpoints}, reverse=True)
     bad = [t for t in marks if not (np.isfinite(t) and tol <= t < 1.0)]
     if bad:
-        raise ValueError(f"checkpoints must satisfy tol = {tol:g} <= t < 1, got {bad}")
+        raise InputError(f"checkpoints must satisfy tol = {tol:g} <= t < 1, got {bad}")
     return marks
 
 
@@ -703,17 +704,17 @@ def homogenize_fft(
     ids = np.unique(phases)
     stiff = _check_materials(materials, ids)
     if scheme not in SCHEMES:
-        raise ValueError(f"scheme must be one of {SCHEMES}, got {scheme!r}")
+        raise InputError(f"scheme must be one of {SCHEMES}, got {scheme!r}")
     if discretization not in DISCRETIZATIONS:
-        raise ValueError(f"discretization must be one of {DISCRETIZATIONS}, got {discretization!r}")
+        raise InputError(f"discretization must be one of {DISCRETIZATIONS}, got {discretization!r}")
     if not (np.isfinite(tol) and 0.0 < tol < 1.0):
-        raise ValueError(f"tol must satisfy 0 < tol < 1, got tol = {tol}")
+        raise InputError(f"tol must satisfy 0 < tol < 1, got tol = {tol}")
     maxiter = DEFAULT_MAXITER[scheme] if maxiter is None else maxiter
     if isinstance(maxiter, bool) or not isinstance(maxiter, (int, np.integer)) or maxiter < 1:
-        raise ValueError(f"maxiter must be a positive integer, got {maxiter!r}")
+        raise InputError(f"maxiter must be a positive integer, got {maxiter!r}")
     threads = _default_threads() if threads is None else threads
     if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
-        raise ValueError(f"threads must be a positive integer, got {threads!r}")
+        raise InputError(f"threads must be a positive integer, got {threads!r}")
     strains = _check_macro_strains(macro_strains)
     marks = _check_checkpoints(checkpoints, tol)
     mandel = {p: voigt_to_mandel(C) for p, C in stiff.items()}
@@ -721,7 +722,7 @@ def homogenize_fft(
     if scheme == "basic":
         void = [p for p, C in stiff.items() if not np.any(C)]
         if void:
-            raise ValueError(f"scheme='basic' cannot handle the zero-stiffness (void) phase(s) {void}: the "
+            raise InputError(f"scheme='basic' cannot handle the zero-stiffness (void) phase(s) {void}: the "
                              "Moulinec–Suquet fixed point does not converge at infinite contrast; use scheme='cg'")
         ref = reference_medium(list(mandel.values()))
 

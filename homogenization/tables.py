@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from foambase.errors import ComputationError, InputError
 from homogenization.fft import homogenize_fft
 from homogenization.tensors import (
     closest_isotropic,
@@ -86,11 +87,11 @@ class SweepSettings:
 
     def __post_init__(self):
         if int(self.n_cells) != self.n_cells or self.n_cells < 2:
-            raise ValueError(f"n_cells must be an integer >= 2, got {self.n_cells!r}")
+            raise InputError(f"n_cells must be an integer >= 2, got {self.n_cells!r}")
         if int(self.resolution) != self.resolution or self.resolution < 8:
-            raise ValueError(f"resolution must be an integer >= 8, got {self.resolution!r}")
+            raise InputError(f"resolution must be an integer >= 8, got {self.resolution!r}")
         if not 0 < self.tol < 1:
-            raise ValueError(f"tol must lie in (0, 1), got {self.tol!r}")
+            raise InputError(f"tol must lie in (0, 1), got {self.tol!r}")
 
 
 @dataclass(frozen=True, order=True)
@@ -212,7 +213,7 @@ def run_sweep(samples: Sequence[Sample], settings: SweepSettings, cache_dir: str
         _write_atomic(cache / cache_name(sample, settings), json.dumps(row, indent=1))
     failures = [f for f in comm.allgather(failure) if f]
     if failures:
-        raise RuntimeError("foam sweep failed (finished samples stay cached): " + "; ".join(failures))
+        raise ComputationError("foam sweep failed (finished samples stay cached): " + "; ".join(failures))
     comm.barrier()
     if stop_after is not None:
         return None
@@ -251,7 +252,7 @@ def read_csv(path: str | os.PathLike) -> dict[str, np.ndarray]:
     with open(path, newline="") as f:
         rows = list(csv.DictReader(f))
     if not rows:
-        raise ValueError(f"{path}: empty table")
+        raise InputError(f"{path}: empty table")
     out = {}
     for name in rows[0]:
         values = [r[name] for r in rows]

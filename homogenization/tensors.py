@@ -20,6 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from foambase.errors import InputError
+
 __all__ = [
     "VOIGT_PAIRS",
     "InadmissibleMaterialError",
@@ -48,7 +50,7 @@ VOIGT_PAIRS: tuple[tuple[int, int], ...] = ((0, 0), (1, 1), (2, 2), (1, 2), (0, 
 _W = np.array([1.0, 1.0, 1.0, np.sqrt(2.0), np.sqrt(2.0), np.sqrt(2.0)])
 
 
-class InadmissibleMaterialError(ValueError):
+class InadmissibleMaterialError(InputError):
     """A set of elastic constants or a stiffness matrix violates a thermodynamic admissibility condition."""
 
 
@@ -58,7 +60,7 @@ class InadmissibleMaterialError(ValueError):
 def _as_6x6(C: np.ndarray, name: str = "C") -> np.ndarray:
     C = np.asarray(C, dtype=float)
     if C.shape != (6, 6):
-        raise ValueError(f"{name} must be a 6×6 matrix, got shape {C.shape}")
+        raise InputError(f"{name} must be a 6×6 matrix, got shape {C.shape}")
     return C
 
 
@@ -89,7 +91,7 @@ def tensor_to_voigt(T: np.ndarray) -> np.ndarray:
     """Fourth-order stiffness tensor (3,3,3,3) → Voigt 6×6 (minor-symmetrised)."""
     T = np.asarray(T, dtype=float)
     if T.shape != (3, 3, 3, 3):
-        raise ValueError(f"expected a (3,3,3,3) tensor, got shape {T.shape}")
+        raise InputError(f"expected a (3,3,3,3) tensor, got shape {T.shape}")
     C = np.empty((6, 6))
     for I, (i, j) in enumerate(VOIGT_PAIRS):
         for J, (k, l) in enumerate(VOIGT_PAIRS):
@@ -105,9 +107,9 @@ def rotate_voigt(C: np.ndarray, R: np.ndarray) -> np.ndarray:
     """
     R = np.asarray(R, dtype=float)
     if R.shape != (3, 3):
-        raise ValueError(f"R must be 3×3, got shape {R.shape}")
+        raise InputError(f"R must be 3×3, got shape {R.shape}")
     if not np.allclose(R @ R.T, np.eye(3), atol=1e-10) or np.linalg.det(R) < 0:
-        raise ValueError("R must be a proper rotation matrix (R Rᵀ = I, det R = +1)")
+        raise InputError("R must be a proper rotation matrix (R Rᵀ = I, det R = +1)")
     T = voigt_to_tensor(C)
     return tensor_to_voigt(np.einsum("ip,jq,kr,ls,pqrs->ijkl", R, R, R, R, T, optimize=True))
 
@@ -120,7 +122,7 @@ def rotation_from_axis(a: np.ndarray) -> np.ndarray:
     a = np.asarray(a, dtype=float).reshape(3)
     n = np.linalg.norm(a)
     if not np.isfinite(n) or n == 0.0:
-        raise ValueError(f"axis must be a finite non-zero vector, got {a.tolist()}")
+        raise InputError(f"axis must be a finite non-zero vector, got {a.tolist()}")
     e3 = a / n
     helper = np.eye(3)[np.argmin(np.abs(e3))]
     e1 = np.cross(helper, e3)
@@ -317,7 +319,7 @@ def closest_transverse_isotropic(C: np.ndarray, axis=(0.0, 0.0, 1.0)) -> Transve
     C = _as_6x6(C)
     if np.isscalar(axis) or np.ndim(axis) == 0:
         if int(axis) not in (0, 1, 2):
-            raise ValueError(f"axis must be 0, 1, 2 or a 3-vector, got {axis}")
+            raise InputError(f"axis must be 0, 1, 2 or a 3-vector, got {axis}")
         axis = np.eye(3)[int(axis)]
     R = rotation_from_axis(axis)
     C_loc = rotate_voigt(0.5 * (C + C.T), R.T)

@@ -22,6 +22,8 @@ import gmsh
 import numpy as np
 from mpi4py import MPI
 
+from foambase.errors import InputError
+
 __all__ = [
     "BEAM_VOLUME",
     "CLAMPED_FACE",
@@ -162,9 +164,9 @@ def distribute_gmsh(
 
 
 def check_order(order: int) -> None:
-    """Raise ``ValueError`` unless ``order`` is a geometry degree the builders support (1 or 2)."""
+    """Raise ``InputError`` unless ``order`` is a geometry degree the builders support (1 or 2)."""
     if order not in (1, 2):
-        raise ValueError(f"order must be 1 (straight tetrahedra) or 2 (quadratic geometry), got {order!r}")
+        raise InputError(f"order must be 1 (straight tetrahedra) or 2 (quadratic geometry), got {order!r}")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -205,15 +207,15 @@ def make_beam(
 
     Raises
     ------
-    ValueError
+    foambase.errors.InputError
         On a non-positive size, an ``h`` larger than the smallest cross-section side, or an unsupported ``order``.
 
     """
     for key, value in (("length", length), ("width", width), ("height", height), ("h", h)):
         if not (np.isfinite(value) and value > 0):
-            raise ValueError(f"beam {key} must be a positive length in metres, got {value!r}")
+            raise InputError(f"beam {key} must be a positive length in metres, got {value!r}")
     if h > min(width, height):
-        raise ValueError(
+        raise InputError(
             f"beam element size h = {h!r} m exceeds the smallest cross-section side {min(width, height)!r} m; "
             "use h ≤ min(width, height)"
         )

@@ -59,6 +59,8 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import Voronoi, cKDTree
 from scipy.stats import qmc
 
+from foambase.errors import ComputationError, InputError
+
 __all__ = [
     "DENSITY_SAMPLE_LOG2",
     "DENSITY_SAMPLE_REPLICATES",
@@ -90,7 +92,7 @@ _SAMPLES_PER_RADIUS = 2.0
 _CHUNK = 1 << 16
 
 
-class FoamParameterError(ValueError):
+class FoamParameterError(InputError):
     """A foam parameter (n_cells, density, gamma, seed, strut shape, resolution) is outside its valid range."""
 
 
@@ -251,7 +253,7 @@ def _window_inradius(polygon: np.ndarray) -> float:
     res = linprog([0.0, 0.0, -1.0], A_ub=np.column_stack([normal, np.ones(len(normal))]), b_ub=offset,
                   bounds=[(None, None), (None, None), (0.0, None)], method="highs")
     if res.status != 0:  # pragma: no cover - a convex polygon always has a Chebyshev centre
-        raise RuntimeError(f"window inradius LP failed: {res.message}")
+        raise ComputationError(f"window inradius LP failed: {res.message}")
     return float(res.x[2])
 
 

@@ -18,6 +18,7 @@ import meshio
 import numpy as np
 from mpi4py import MPI
 
+from foambase.errors import InputError
 from meshes.beam import TaggedMesh, distribute_gmsh
 
 __all__ = ["MshMesh", "PhysicalGroups", "physical_groups", "read_msh"]
@@ -41,18 +42,18 @@ def physical_groups(path: str | Path) -> PhysicalGroups:
 
     Raises
     ------
-    ValueError
+    foambase.errors.InputError
         The file is not a readable ``.msh`` file, has no tetrahedra, or has tetrahedra outside every physical
         volume group.
 
     """
     path = Path(path)
     if path.suffix != ".msh":
-        raise ValueError(f"mesh file {path}: expected a gmsh .msh file, got suffix {path.suffix!r}")
+        raise InputError(f"mesh file {path}: expected a gmsh .msh file, got suffix {path.suffix!r}")
     try:
         msh = meshio.read(path, file_format="gmsh")
     except (Exception, SystemExit) as exc:  # meshio raises many types on a broken file, even SystemExit
-        raise ValueError(f"mesh file {path}: cannot read it as a gmsh .msh file ({exc})") from exc
+        raise InputError(f"mesh file {path}: cannot read it as a gmsh .msh file ({exc})") from exc
     tags = {"cells": set(), "facets": set()}
     n_tetra = 0
     physical = msh.cell_data.get("gmsh:physical", [None] * len(msh.cells))
@@ -63,12 +64,12 @@ def physical_groups(path: str | Path) -> PhysicalGroups:
         n_tetra += len(block.data) if kind == "cells" else 0
         if data is None or np.any(np.asarray(data) <= 0):
             if kind == "cells":
-                raise ValueError(f"mesh file {path}: some tetrahedra are in no physical volume group (every cell "
+                raise InputError(f"mesh file {path}: some tetrahedra are in no physical volume group (every cell "
                                  "needs one, the scene's regions refer to them)")
             continue
         tags[kind].update(int(t) for t in np.unique(data))
     if n_tetra == 0:
-        raise ValueError(f"mesh file {path}: no tetrahedra (a 3-D tetrahedral mesh is required)")
+        raise InputError(f"mesh file {path}: no tetrahedra (a 3-D tetrahedral mesh is required)")
     names = {"cells": {}, "facets": {}}
     for name, (tag, dim) in msh.field_data.items():
         if dim in (2, 3):

@@ -50,6 +50,7 @@ import ufl
 from dolfinx import cpp as _cpp
 from mpi4py import MPI
 
+from foambase.errors import ComputationError
 from meshes.foam import FoamParameterError, VoronoiFoam
 
 __all__ = ["FACE_TAGS", "MIN_VOLUME_FRACTION", "SNAP", "SOLID", "VOID", "ZERO_BAND", "RVEMesh", "mesh_rve"]
@@ -393,8 +394,8 @@ def mesh_rve(foam: VoronoiFoam, h: float, comm: MPI.Comm = MPI.COMM_WORLD, order
             failure = exc
     if comm.bcast(failure is not None, root=0):
         if comm.rank == 0:
-            raise RuntimeError(f"mesh_rve failed for {name}, h={h}: {failure}") from failure
-        raise RuntimeError(f"mesh_rve failed on rank 0 for {name}, h={h}")
+            raise ComputationError(f"mesh_rve failed for {name}, h={h}: {failure}") from failure
+        raise ComputationError(f"mesh_rve failed on rank 0 for {name}, h={h}")
     if comm.rank != 0:
         x, cells, tags = np.empty((0, 3)), np.empty((0, 4), dtype=np.int64), np.empty(0, dtype=np.int32)
         facets, facet_values = np.empty((0, 3), dtype=np.int64), np.empty(0, dtype=np.int32)

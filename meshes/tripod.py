@@ -64,6 +64,7 @@ import gmsh
 import numpy as np
 from mpi4py import MPI
 
+from foambase.errors import ComputationError, InputError
 from meshes.beam import TaggedMesh, check_order, generate_tetrahedra
 
 __all__ = [
@@ -185,20 +186,20 @@ class TripodGeometry:
                     "arm_end_radius", "servo_radius", "horn_length"):
             value = getattr(self, key)
             if not (np.isfinite(value) and value > 0):
-                raise ValueError(f"Tripod {key} must be a positive length in metres, got {value!r}")
+                raise InputError(f"Tripod {key} must be a positive length in metres, got {value!r}")
         if not (np.isfinite(self.fillet_radius) and self.fillet_radius >= 0):
-            raise ValueError(f"Tripod fillet_radius must be ≥ 0 m (0: sharp corners), got {self.fillet_radius!r}")
+            raise InputError(f"Tripod fillet_radius must be ≥ 0 m (0: sharp corners), got {self.fillet_radius!r}")
         if not np.isfinite(self.pivot_z):
-            raise ValueError(f"Tripod pivot_z must be a finite height in metres, got {self.pivot_z!r}")
+            raise InputError(f"Tripod pivot_z must be a finite height in metres, got {self.pivot_z!r}")
         radii = [("hole_radius", self.hole_radius), ("ring_radius", self.ring_radius),
                  ("re-entrant corner radius arm_width/(2 sin 60°)", self.reentrant_radius),
                  ("centre_radius", self.centre_radius), ("arm_end_radius", self.arm_end_radius),
                  ("arm_length", self.arm_length)]
         for (name_a, a), (name_b, b) in zip(radii[:-1], radii[1:]):
             if not a < b:
-                raise ValueError(f"Tripod radii must increase: {name_a} = {a!r} m is not < {name_b} = {b!r} m")
+                raise InputError(f"Tripod radii must increase: {name_a} = {a!r} m is not < {name_b} = {b!r} m")
         if not self.fillet_outer_radius < self.centre_radius:
-            raise ValueError(
+            raise InputError(
                 f"Tripod fillet_radius = {self.fillet_radius!r} m reaches r = {self.fillet_outer_radius!r} m, "
                 f"beyond centre_radius = {self.centre_radius!r} m; use a smaller fillet or a larger centre"
             )
@@ -312,8 +313,8 @@ class TripodGeometry:
             gmsh.model.addPhysicalGroup(3, members, tag)
         expected = {RING, CENTRE, ARM[0], ARM_END[0]}
         if set(tags) != expected:
-            raise RuntimeError(f"Tripod wedge regions came out as cell tags {sorted(set(tags))}, "
-                               f"expected {sorted(expected)}")
+            raise ComputationError(f"Tripod wedge regions came out as cell tags {sorted(set(tags))}, "
+                                   f"expected {sorted(expected)}")
 
     def _fillet_patch(self, i: int, z0: float) -> tuple[int, int]:
         """Fillet between arms i and i+1: the kite (corner, tangent point, fillet centre, tangent point) minus disc."""
@@ -340,7 +341,7 @@ class TripodMesh(TaggedMesh):
     def region_cells(self, region: str) -> np.ndarray:
         """Local indices of the cells of a named region of :data:`REGIONS` (e.g. ``"centre"``, ``"arm_end2"``)."""
         if region not in REGIONS:
-            raise ValueError(f"unknown Tripod region {region!r}; valid regions: {sorted(REGIONS)}")
+            raise InputError(f"unknown Tripod region {region!r}; valid regions: {sorted(REGIONS)}")
         return np.unique(np.concatenate([self.cell_tags.find(tag) for tag in REGIONS[region]]))
 
     def arm_end_dofs(self, V: dolfinx.fem.FunctionSpace, servo: int) -> np.ndarray:
@@ -350,7 +351,7 @@ class TripodMesh(TaggedMesh):
         with a Function interpolating :meth:`ServoFrame.displacement` to ``fem.dirichletbc``.
         """
         if servo not in (0, 1, 2):
-            raise ValueError(f"servo must be 0, 1 or 2, got {servo!r}")
+            raise InputError(f"servo must be 0, 1 or 2, got {servo!r}")
         cells = self.region_cells(f"arm_end{servo}")
         return dolfinx.fem.locate_dofs_topological(V, self.mesh.topology.dim, cells)
 
@@ -455,7 +456,7 @@ def make_tripod(
     """
     geometry = TripodGeometry() if geometry is None else geometry
     if not (np.isfinite(h) and 0 < h <= 2 * geometry.thickness):
-        raise ValueError(
+        raise InputError(
             f"Tripod element size h = {h!r} m must be positive and at most twice the thickness "
             f"({2 * geometry.thickness!r} m)"
         )

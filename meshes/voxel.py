@@ -12,6 +12,8 @@ import numpy as np
 from dolfinx import mesh as dmesh
 from mpi4py import MPI
 
+from foambase.errors import InputError
+
 __all__ = ["SOLID", "VOID", "upsample", "voxel_mesh"]
 
 #: Cell tags of the two phases (as ``meshes.foam.mesh_rve``).
@@ -22,7 +24,7 @@ VOID = 2
 def upsample(image: np.ndarray, refine: int) -> np.ndarray:
     """The same voxel geometry on a grid ``refine`` times finer (each voxel split into ``refine³``)."""
     if int(refine) != refine or refine < 1:
-        raise ValueError(f"refine must be an integer >= 1, got {refine!r}")
+        raise InputError(f"refine must be an integer >= 1, got {refine!r}")
     for axis in range(3):
         image = np.repeat(image, refine, axis=axis)
     return image
@@ -50,11 +52,11 @@ def voxel_mesh(image: np.ndarray, comm: MPI.Comm = MPI.COMM_WORLD, refine: int =
     """
     image = np.asarray(image)
     if image.ndim != 3 or min(image.shape) < 1:
-        raise ValueError(f"image must be a non-empty 3D array, got shape {image.shape}")
+        raise InputError(f"image must be a non-empty 3D array, got shape {image.shape}")
     if not np.isin(image, (0, 1)).all():
-        raise ValueError(f"image must hold 0/1 (void/solid) values, got {np.unique(image)[:5].tolist()}")
+        raise InputError(f"image must hold 0/1 (void/solid) values, got {np.unique(image)[:5].tolist()}")
     if int(refine) != refine or refine < 1:
-        raise ValueError(f"refine must be an integer >= 1, got {refine!r}")
+        raise InputError(f"refine must be an integer >= 1, got {refine!r}")
     n = [s * int(refine) for s in image.shape]
     msh = dmesh.create_box(comm, [np.zeros(3), np.ones(3)], n, dmesh.CellType.hexahedron)
     tdim = msh.topology.dim
