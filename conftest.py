@@ -12,7 +12,9 @@ from pathlib import Path
 
 import pytest
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+from foambase.threads import single_threaded_blas_by_default
+
+single_threaded_blas_by_default()  # the test entry point, before numpy is imported
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
 
 

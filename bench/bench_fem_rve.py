@@ -20,16 +20,18 @@ machine.
 import argparse
 import csv
 import json
-import os
 import resource
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+from foambase.threads import single_threaded_blas_by_default
+
+single_threaded_blas_by_default()  # before numpy loads OpenBLAS: its threads spin against FFTW's
 
 import numpy as np
+
+from foambase.files import atomic_open
 
 SIZES = {1: (16, 24, 32), 2: (8, 12, 16)}  # 14.7k, 46.9k, 108k dofs for both degrees
 CI_SIZES = {1: (4, 8), 2: (4, 6)}
@@ -98,11 +100,10 @@ def _in_subprocess(args):
 
 
 def _write_csv(path: Path, rows, fields):
-    with tempfile.NamedTemporaryFile("w", dir=path.parent, delete=False, suffix=".tmp", newline="") as f:
+    with atomic_open(path) as f:
         writer = csv.DictWriter(f, fieldnames=fields)
         writer.writeheader()
         writer.writerows(rows)
-    os.replace(f.name, path)
 
 
 def _print_table(rows, fields):

@@ -11,9 +11,9 @@ Each case runs in a fresh process so that its peak RSS (``getrusage``) is its ow
 ``DIR/bench_fft.csv``. Usage: ``python bench/bench_fft.py --out out/bench [--sizes 32 64] [--threads 2]``.
 """
 
-import os
+from foambase.threads import single_threaded_blas_by_default
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # OpenBLAS threads spin against FFTW's (DESIGN.md)
+single_threaded_blas_by_default()  # before numpy loads OpenBLAS: its threads spin against FFTW's
 
 import argparse
 import csv

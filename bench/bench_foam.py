@@ -13,13 +13,14 @@ Usage: ``bench_foam.py --out DIR`` (``--ci``: one small case, N = 32 only). Prin
 
 import argparse
 import csv
-import os
-import tempfile
 import time
 from pathlib import Path
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+from foambase.threads import single_threaded_blas_by_default
 
+single_threaded_blas_by_default()  # before numpy loads OpenBLAS: its threads spin against FFTW's
+
+from foambase.files import atomic_open
 from meshes.foam import VoronoiFoam
 
 CASES = [(20, 1.0), (20, 0.1), (50, 1.0), (50, 0.1)]
@@ -74,11 +75,10 @@ def run_mesh(cases) -> list[dict]:
 
 
 def write_csv(path: Path, rows: list[dict], fields=FIELDS) -> None:
-    with tempfile.NamedTemporaryFile("w", dir=path.parent, delete=False, suffix=".tmp", newline="") as f:
+    with atomic_open(path) as f:
         writer = csv.DictWriter(f, fieldnames=fields)
         writer.writeheader()
         writer.writerows(rows)
-    os.replace(f.name, path)
 
 
 if __name__ == "__main__":

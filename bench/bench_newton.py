@@ -19,8 +19,6 @@ Two studies behind design choices (README, "Macro FEM"), each with its own table
 
 import argparse
 import csv
-import os
-import tempfile
 import time
 from pathlib import Path
 
@@ -36,6 +34,7 @@ from fenicsfoam.bcs import RigidMotion
 from fenicsfoam.constitutive import MODELS, MaterialField, polar_rotation
 from fenicsfoam.materials import TransverseIsotropic
 from fenicsfoam.solver import ConvergenceError, ElasticityProblem, LoadStep
+from foambase.files import atomic_open
 
 L, H = 0.25, 0.015
 #: create_box divisions (nx, n, n): 6 nx n² tetrahedra.
@@ -105,11 +104,10 @@ COLUMNS = ("size", "cells", "degree", "model", "solver", "ranks", "dofs", "its_g
 def write_csv(rows: list[dict], path: Path, columns) -> None:
     """Write rows to ``path`` through a temporary file in the same directory (rank 0 only)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.NamedTemporaryFile("w", dir=path.parent, suffix=".tmp", delete=False, newline="") as f:
+    with atomic_open(path) as f:
         writer = csv.DictWriter(f, fieldnames=columns, extrasaction="ignore")
         writer.writeheader()
         writer.writerows(rows)
-    os.replace(f.name, path)
     print(f"wrote {path}")
 
 

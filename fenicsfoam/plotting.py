@@ -15,9 +15,9 @@ import numpy as np
 from dolfinx import fem, plot
 from dolfinx.mesh import compute_midpoints
 
-__all__ = ["plot_displacement", "plot_orientation"]
+from foambase.files import atomic_path
 
-os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+__all__ = ["plot_displacement", "plot_orientation"]
 
 #: Camera: view vector and view-up, tilted from above (both robots lie along x–y, gravity along −z).
 VIEW = ((0.6, -1.0, 0.8), (0.0, 0.0, 1.0))
@@ -40,9 +40,16 @@ def _gather(pieces, comm):
     return [np.concatenate(parts) for parts in zip(*merged)]
 
 
-def _plotter(title: str):
+def _pyvista():
+    """pyvista, rendering offscreen through EGL (no X server needed, no X warning); set before vtk renders."""
+    os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
     import pyvista
     pyvista.OFF_SCREEN = True
+    return pyvista
+
+
+def _plotter(title: str):
+    pyvista = _pyvista()
     plotter = pyvista.Plotter(off_screen=True, window_size=(1200, 900))
     plotter.set_background("white")
     plotter.add_text(title, font_size=12, color="black")
@@ -52,10 +59,9 @@ def _plotter(title: str):
 def _save(plotter, path: Path) -> None:
     plotter.view_vector(VIEW[0], viewup=VIEW[1])
     plotter.reset_camera()
-    tmp = path.with_name(f".{path.stem}.tmp.png")
-    plotter.screenshot(str(tmp))
+    with atomic_path(path) as tmp:
+        plotter.screenshot(str(tmp))
     plotter.close()
-    os.replace(tmp, path)
 
 
 def plot_displacement(u: fem.Function, path: Path, title: str = "") -> None:
@@ -69,7 +75,7 @@ def plot_displacement(u: fem.Function, path: Path, title: str = "") -> None:
     data = _gather((topology, cell_types, points, values), V.mesh.comm)
     if data is None:
         return
-    import pyvista
+    pyvista = _pyvista()
     topology, cell_types, points, values = data
     magnitude = 1e3 * np.linalg.norm(values, axis=1)
     reference = pyvista.UnstructuredGrid(topology, cell_types, points)
@@ -103,7 +109,7 @@ def plot_orientation(orientation: fem.Function, path: Path, title: str = "") -> 
     data = _gather((topology, cell_types, points), mesh.comm)
     if data is None:
         return
-    import pyvista
+    pyvista = _pyvista()
     topology, cell_types, points = data
     midpoints = np.concatenate([g[0] for g in gathered])
     directions = np.concatenate([g[1] for g in gathered])

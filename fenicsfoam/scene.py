@@ -43,7 +43,6 @@ import copy
 import csv
 import importlib
 import io
-import json
 import logging
 import math
 import os
@@ -59,6 +58,7 @@ from typing import Any
 import numpy as np
 
 from foambase.errors import InputError
+from foambase.files import write_json_atomic, write_text_atomic
 
 __all__ = [
     "PROBES",
@@ -741,19 +741,6 @@ class SceneResult:
         return "\n".join(lines)
 
 
-def _write_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same directory and ``os.replace``."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with tmp.open("w", newline="") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
-
-
 def _probes_csv(result: SceneResult) -> str:
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
@@ -877,8 +864,8 @@ def run_scene(source: str | os.PathLike | Mapping[str, Any] | Scene, out_dir: st
     result.wall_s = comm.allreduce(time.perf_counter() - start, op=MPI.MAX)
     result.out_dir = out
     if out is not None and comm.rank == 0:
-        _write_atomic(out / "summary.json", json.dumps(result.summary(), indent=2) + "\n")
-        _write_atomic(out / "probes.csv", _probes_csv(result))
+        write_json_atomic(out / "summary.json", result.summary())
+        write_text_atomic(out / "probes.csv", _probes_csv(result))
     if failure is not None:
         raise failure
     return result

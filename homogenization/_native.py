@@ -16,10 +16,11 @@ import os
 import platform
 import shutil
 import subprocess
-import tempfile
 from pathlib import Path
 
 import cffi
+
+from foambase.files import atomic_path
 
 logger = logging.getLogger(__name__)
 
@@ -55,16 +56,12 @@ def _compile(target: Path) -> None:
     if compiler is None:
         raise OSError("no C compiler found (cc, gcc or $CC)")
     target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=target.stem, suffix=".tmp")
-    os.close(fd)
     try:
-        subprocess.run([compiler, *FLAGS, str(SOURCE), "-o", tmp], check=True, capture_output=True, text=True)
-        os.replace(tmp, target)
+        with atomic_path(target) as tmp:
+            subprocess.run([compiler, *FLAGS, str(SOURCE), "-o", str(tmp)], check=True, capture_output=True,
+                           text=True)
     except subprocess.CalledProcessError as exc:
         raise OSError(f"compiling {SOURCE.name} failed: {exc.stderr.strip()}") from exc
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
 
 
 @functools.cache

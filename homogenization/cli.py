@@ -22,15 +22,14 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # OpenBLAS threads spin against FFTW's (DESIGN.md)
 
 import argparse  # noqa: E402
-import json  # noqa: E402
 import logging  # noqa: E402
 import sys  # noqa: E402
-import tempfile  # noqa: E402
 from importlib import metadata  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from foambase.files import write_json_atomic  # noqa: E402
 from homogenization.fft import DISCRETIZATIONS, SCHEMES, FFTConvergenceError, homogenize_fft  # noqa: E402
 from homogenization.tensors import InadmissibleMaterialError, isotropic_voigt  # noqa: E402
 
@@ -112,18 +111,6 @@ def _versions() -> dict[str, str]:
             "python": sys.version.split()[0]}
 
 
-def write_json_atomic(path: Path, data: dict) -> None:
-    """Write ``data`` as JSON to a temporary file in ``path``'s directory, then rename it onto ``path``."""
-    with tempfile.NamedTemporaryFile("w", dir=path.parent, prefix=f".{path.name}.", suffix=".tmp",
-                                     delete=False) as tmp:
-        try:
-            json.dump(data, tmp, indent=1)
-        except BaseException:
-            os.unlink(tmp.name)
-            raise
-    os.replace(tmp.name, path)
-
-
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit status (0 ok, 1 solver failure; 2 bad arguments via argparse)."""
     from tqdm import tqdm
@@ -161,7 +148,7 @@ def main(argv: list[str] | None = None) -> int:
           + f"; error {ti['error']:.3g}")
     print(f"iterations {result.iterations}, wall {result.wall_s:.2f} s")
     if args.out is not None:
-        write_json_atomic(args.out, summary)
+        write_json_atomic(args.out, summary, indent=1)
         print(f"written {args.out}")
     return 0
 

@@ -24,7 +24,6 @@ import csv
 import json
 import logging
 import os
-import tempfile
 import time
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass
@@ -34,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from foambase.errors import ComputationError, InputError
+from foambase.files import write_json_atomic, write_text_atomic
 from homogenization.fft import homogenize_fft
 from homogenization.tensors import (
     closest_isotropic,
@@ -122,19 +122,6 @@ def _version() -> str:
         return "unknown"
 
 
-def _write_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same directory and a rename."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", newline="") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def homogenize_sample(sample: Sample, settings: SweepSettings, threads: int | None = None) -> dict:
     """Build, voxelize and homogenize one foam; return its table row (moduli normalised by E_s = 1).
 
@@ -210,7 +197,7 @@ def run_sweep(samples: Sequence[Sample], settings: SweepSettings, cache_dir: str
         except Exception as exc:  # reported below on every rank, never swallowed
             failure = f"{sample}: {type(exc).__name__}: {exc}"
             break
-        _write_atomic(cache / cache_name(sample, settings), json.dumps(row, indent=1))
+        write_json_atomic(cache / cache_name(sample, settings), row, indent=1)
     failures = [f for f in comm.allgather(failure) if f]
     if failures:
         raise ComputationError("foam sweep failed (finished samples stay cached): " + "; ".join(failures))
@@ -243,7 +230,8 @@ def to_csv(rows: Sequence[dict], path: str | os.PathLike) -> Path:
     lines = [",".join(columns)]
     for row in rows:
         lines.append(",".join(repr(row[c]) if isinstance(row[c], float) else str(row[c]) for c in columns))
-    _write_atomic(path, "\n".join(lines) + "\n")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(path, "\n".join(lines) + "\n")
     return path
 
 
@@ -266,13 +254,9 @@ def read_csv(path: str | os.PathLike) -> dict[str, np.ndarray]:
 def write_tables(rows: Sequence[dict], out_dir: str | os.PathLike, provenance: dict) -> dict[str, Path]:
     """Write ``foam_table_samples.csv``, ``foam_table.csv`` (aggregated) and ``foam_table_provenance.json``."""
     out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
     return {"samples": to_csv(rows, out / SAMPLES_CSV.name), "table": to_csv(aggregate(rows), out / TABLE_CSV.name),
-            "provenance": _write_atomic_json(out / "foam_table_provenance.json", provenance)}
-
-
-def _write_atomic_json(path: Path, data: dict) -> Path:
-    _write_atomic(path, json.dumps(data, indent=2) + "\n")
-    return path
+            "provenance": write_json_atomic(out / "foam_table_provenance.json", provenance)}
 
 
 def settings_dict(settings: SweepSettings) -> dict:

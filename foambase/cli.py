@@ -1,0 +1,145 @@
+"""Command lines made of sub-commands, with one table of exit codes.
+
+A :class:`Command` is a name, a help line, a function that adds its arguments to an ``argparse`` parser, an
+optional usage check and the function that runs it. :func:`main` builds ``PROG COMMAND [options]`` from a
+registry of ``"module:ATTRIBUTE"`` strings (a new sub-command is one line in the registry; its module is imported
+when the parser is built) and :func:`main_single` runs one command as a program of its own (an alias such as
+``homogenize``); both go through :func:`dispatch`, the one place that maps outcomes to exit statuses:
+
+====  ======================================================================================
+code  meaning
+====  ======================================================================================
+0     success
+1     any other failure (a :class:`~foambase.errors.FenicsfoamError` with code 1; an unexpected exception,
+      which prints its traceback)
+2     bad input, detected before any work: argparse usage errors, a command's usage check, and
+      :class:`~foambase.errors.InputError` (e.g. an invalid scene)
+3     a solver did not converge (:class:`~foambase.errors.NotConvergedError`)
+====  ======================================================================================
+
+Before anything else, the entry points keep OpenBLAS single-threaded unless the user said otherwise
+(:func:`foambase.threads.single_threaded_blas_by_default`; it must happen before numpy is imported, which is why the
+registry is imported lazily), then set up logging on rank 0 (:func:`foambase.logs.setup_logging`: ``-v`` INFO,
+``-vv`` DEBUG). Errors of the family are printed once, on rank 0, as ``PROG COMMAND: error: message``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+from foambase.errors import EXIT_OK, FenicsfoamError, exit_code
+from foambase.logs import launcher_rank, setup_logging
+from foambase.threads import single_threaded_blas_by_default
+
+__all__ = ["Command", "build_parser", "dispatch", "main", "main_single", "resolve"]
+
+
+@dataclass(frozen=True)
+class Command:
+    """A sub-command.
+
+    Attributes
+    ----------
+    name
+        The sub-command's name (``fenicsfoam NAME``).
+    help
+        One line for ``PROG --help``.
+    add_arguments
+        Adds the command's arguments to its parser.
+    run
+        Runs the command; returns the exit status (0) or raises an error of the family.
+    description
+        Longer text for ``PROG NAME --help`` (default: ``help``).
+    check
+        ``check(parser, args)`` validates the arguments before any work and reports a usage error with
+        ``parser.error`` (exit status 2).
+    passthrough
+        Arguments after ``--`` are not parsed but handed to the command as ``args.passthrough`` (e.g. PETSc options).
+
+    """
+
+    name: str
+    help: str
+    add_arguments: Callable[[argparse.ArgumentParser], None]
+    run: Callable[[argparse.Namespace], int]
+    description: str = ""
+    check: Callable[[argparse.ArgumentParser, argparse.Namespace], None] | None = None
+    passthrough: bool = False
+
+
+def resolve(spec: str) -> Command:
+    """The :class:`Command` named by ``"module:ATTRIBUTE"``."""
+    module, _, attribute = spec.partition(":")
+    return getattr(importlib.import_module(module), attribute)
+
+
+def _verbosity(parser: argparse.ArgumentParser, dest: str = "verbose") -> None:
+    parser.add_argument("-v", "--verbose", dest=dest, action="count", default=0,
+                        help="more log output: -v INFO (with FFCx's compiler lines), -vv DEBUG")
+
+
+def _command_parser(parser: argparse.ArgumentParser, command: Command) -> None:
+    command.add_arguments(parser)
+    _verbosity(parser)
+    parser.set_defaults(command=command, command_parser=parser)
+
+
+def build_parser(prog: str, description: str, commands: Sequence[Command]) -> argparse.ArgumentParser:
+    """The parser of ``PROG [-v] COMMAND [options]``."""
+    parser = argparse.ArgumentParser(prog=prog, description=description)
+    _verbosity(parser, dest="verbose_global")
+    sub = parser.add_subparsers(dest="command_name", required=True, metavar="COMMAND")
+    for command in commands:
+        _command_parser(sub.add_parser(command.name, help=command.help,
+                                       description=command.description or command.help,
+                                       formatter_class=argparse.ArgumentDefaultsHelpFormatter), command)
+    return parser
+
+
+def _split_passthrough(argv: Sequence[str]) -> tuple[list[str], list[str]]:
+    argv = list(argv)
+    if "--" not in argv:
+        return argv, []
+    i = argv.index("--")
+    return argv[:i], argv[i + 1:]
+
+
+def dispatch(parser: argparse.ArgumentParser, argv: Sequence[str]) -> int:
+    """Parse ``argv``, set up logging, run the chosen command and map its outcome to an exit status."""
+    own, passthrough = _split_passthrough(argv)
+    args = parser.parse_args(own)  # usage errors: SystemExit(2); --help: SystemExit(0)
+    command: Command = args.command
+    own_parser: argparse.ArgumentParser = args.command_parser
+    if passthrough and not command.passthrough:
+        own_parser.error(f"unrecognized arguments after '--': {' '.join(passthrough)}")
+    args.passthrough = passthrough
+    setup_logging(args.verbose + getattr(args, "verbose_global", 0))
+    if command.check is not None:
+        command.check(own_parser, args)
+    try:
+        status = command.run(args)
+    except FenicsfoamError as error:
+        if launcher_rank() == 0:
+            print(f"{own_parser.prog}: error: {error}", file=sys.stderr)
+        return exit_code(error)
+    return EXIT_OK if status is None else int(status)
+
+
+def main(prog: str, description: str, registry: Sequence[str], argv: Sequence[str] | None = None) -> int:
+    """Run ``PROG COMMAND ...`` for the commands of ``registry`` (``"module:ATTRIBUTE"`` strings)."""
+    single_threaded_blas_by_default()
+    parser = build_parser(prog, description, [resolve(spec) for spec in registry])
+    return dispatch(parser, sys.argv[1:] if argv is None else argv)
+
+
+def main_single(command: Command, prog: str, argv: Sequence[str] | None = None) -> int:
+    """Run one command as the program ``prog`` (same arguments, same code path and exit statuses)."""
+    single_threaded_blas_by_default()
+    parser = argparse.ArgumentParser(prog=prog, description=command.description or command.help,
+                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    _command_parser(parser, command)
+    return dispatch(parser, sys.argv[1:] if argv is None else argv)
