@@ -57,6 +57,7 @@ from typing import Any
 
 import numpy as np
 
+from fenicsfoam.materials import FOAM_FITS
 from foambase.errors import InputError
 from foambase.files import write_json_atomic, write_text_atomic
 
@@ -86,7 +87,6 @@ MATERIAL_KEYS: dict[str, dict[str, tuple[bool, float | None]]] = {
     "foam": {"density": (True, None), "gamma": (True, None), "E_solid": (True, None), "nu_solid": (True, None),
              "rho_solid": (False, 0.0)},
 }
-FOAM_FITS = ("transverse", "isotropic", "paper")
 ORIENTATION_KINDS = ("uniform", "per_tag", "spiral", "callable")
 HANDEDNESS = {"counterclockwise": 1.0, "clockwise": -1.0}
 #: The options prefix of every scene's SNES (command-line options: ``-scene_snes_rtol 1e-8``).

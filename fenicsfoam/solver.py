@@ -30,7 +30,7 @@ from typing import Any
 import basix
 import numpy as np
 import ufl
-from dolfinx import fem, la
+from dolfinx import fem
 from dolfinx.fem.petsc import (
     apply_lifting,
     assemble_matrix,
@@ -54,6 +54,7 @@ from fenicsfoam.constitutive import (
 )
 from fenicsfoam.stability import EllipticityCheck, ellipticity_margin
 from foambase.errors import InputError, NotConvergedError
+from foambase.nullspace import rigid_body_modes
 
 __all__ = ["ConvergenceError", "ElasticityProblem", "LoadState", "LoadStep", "StepStats", "rigid_body_modes"]
 
@@ -174,25 +175,6 @@ class LoadState:
     def __eq__(self, other) -> bool:
         return (self.gravity == other.gravity and self.angles == other.angles
                 and all(np.array_equal(t, other.translations[k]) for k, t in self.translations.items()))
-
-
-def rigid_body_modes(V: fem.FunctionSpace) -> PETSc.NullSpace:
-    """The six rigid-body modes (3 translations, 3 rotations) of a 3D vector space, orthonormalised.
-
-    Attached to the Jacobian as its near-nullspace, for algebraic multigrid (``-pc_type gamg``).
-    """
-    index_map, bs = V.dofmap.index_map, V.dofmap.index_map_bs
-    x = V.tabulate_dof_coordinates()[:index_map.size_local]
-    modes = [la.create_petsc_vector(index_map, bs) for _ in range(6)]
-    with contextlib.ExitStack() as stack:
-        b = [stack.enter_context(m.localForm()).array.reshape(-1, bs) for m in modes]
-        for i in range(3):
-            b[i][:index_map.size_local, i] = 1.0
-        for k, (i, j) in enumerate(((0, 1), (1, 2), (2, 0))):  # rotation in the (i, j) plane
-            b[3 + k][:index_map.size_local, i] = -x[:, j]
-            b[3 + k][:index_map.size_local, j] = x[:, i]
-    la.orthonormalize(modes)
-    return PETSc.NullSpace().create(vectors=modes, comm=V.mesh.comm)
 
 
 class ElasticityProblem:

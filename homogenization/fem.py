@@ -60,6 +60,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from foambase.errors import InputError, NotConvergedError
+from foambase.nullspace import rigid_body_modes
 from homogenization.result import LOAD_CASES, HomogenizationResult
 from homogenization.tensors import VOIGT_PAIRS, check_stiffness, voigt_to_mandel
 
@@ -287,19 +288,6 @@ def _pinned_dof_bc(V, x: np.ndarray, tags, materials, box: np.ndarray, tol: floa
     return bc, point
 
 
-def _rigid_body_modes(x_owned: np.ndarray, A: PETSc.Mat, centre: np.ndarray) -> PETSc.NullSpace:
-    """Near-nullspace of the six rigid-body modes (translations, rotations about ``centre``) for multigrid."""
-    x = x_owned - centre
-    basis = [A.createVecLeft() for _ in range(6)]
-    for i in range(3):
-        basis[i].array.reshape(-1, 3)[:, i] = 1.0
-    for k, (i, j) in enumerate(((0, 1), (1, 2), (2, 0))):  # rotation in the (i, j) plane
-        r = basis[3 + k].array.reshape(-1, 3)
-        r[:, i], r[:, j] = -x[:, j], x[:, i]
-    dolfinx.la.orthonormalize(basis)
-    return PETSc.NullSpace().create(vectors=basis, comm=A.getComm())
-
-
 def _make_solver(A: PETSc.Mat, options: dict[str, Any], comm) -> PETSc.KSP:
     ksp = PETSc.KSP().create(comm)
     ksp.setOptionsPrefix(OPTIONS_PREFIX)
@@ -404,7 +392,7 @@ def homogenize_fem(mesh: dolfinx.mesh.Mesh, cell_tags: dolfinx.mesh.MeshTagsMeta
         diagonal.array[void_rows] = 1.0
         A.setDiagonal(diagonal, addv=PETSc.InsertMode.INSERT_VALUES)
     A.setOption(PETSc.Mat.Option.SYMMETRIC, True)
-    A.setNearNullSpace(_rigid_body_modes(x_dofs[: V.dofmap.index_map.size_local], A, box.mean(axis=0)))
+    A.setNearNullSpace(rigid_body_modes(V, centre=box.mean(axis=0)))
     t_assembly = time.perf_counter() - t0
 
     t0 = time.perf_counter()

@@ -66,7 +66,6 @@ range of ``G``) is summed during the constitutive pass.
 from __future__ import annotations
 
 import logging
-import os
 import resource
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -77,6 +76,7 @@ import numpy as np
 import pyfftw
 
 from foambase.errors import InputError, NotConvergedError
+from foambase.threads import cpu_count
 from homogenization import _native
 from homogenization.result import HomogenizationResult
 from homogenization.tensors import check_stiffness, closest_isotropic, mandel_to_voigt, voigt_to_mandel
@@ -537,13 +537,6 @@ def _stiffness_columns(strains: np.ndarray, mean_stress: np.ndarray) -> np.ndarr
     return C_raw
 
 
-def _default_threads() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - not on Linux
-        return os.cpu_count() or 1
-
-
 # --------------------------------------------------------------------------------------------------
 # The schemes: each solves one load case, returns (⟨σ⟩ Voigt, residual history, converged, message) and calls
 # report(iteration, residual, ⟨σ⟩ of the current iterate) after every iteration (and at iteration 0)
@@ -712,7 +705,7 @@ def homogenize_fft(
     maxiter = DEFAULT_MAXITER[scheme] if maxiter is None else maxiter
     if isinstance(maxiter, bool) or not isinstance(maxiter, (int, np.integer)) or maxiter < 1:
         raise InputError(f"maxiter must be a positive integer, got {maxiter!r}")
-    threads = _default_threads() if threads is None else threads
+    threads = cpu_count() if threads is None else threads
     if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
         raise InputError(f"threads must be a positive integer, got {threads!r}")
     strains = _check_macro_strains(macro_strains)

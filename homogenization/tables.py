@@ -34,6 +34,7 @@ import numpy as np
 
 from foambase.errors import ComputationError, InputError
 from foambase.files import write_json_atomic, write_text_atomic
+from foambase.threads import threads_per_rank
 from homogenization.fft import homogenize_fft
 from homogenization.tensors import (
     closest_isotropic,
@@ -149,14 +150,6 @@ def homogenize_sample(sample: Sample, settings: SweepSettings, threads: int | No
     return {k: row[k] for k in SAMPLE_COLUMNS}
 
 
-def _default_threads(comm) -> int:
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - not Linux
-        cores = os.cpu_count() or 1
-    return max(1, cores // comm.size)
-
-
 def run_sweep(samples: Sequence[Sample], settings: SweepSettings, cache_dir: str | os.PathLike, comm=None, *,
               threads: int | None = None, progress: bool = True, stop_after: int | None = None) -> list[dict] | None:
     """Homogenize every sample not yet in ``cache_dir``; return all rows (sorted) on every rank.
@@ -186,7 +179,7 @@ def run_sweep(samples: Sequence[Sample], settings: SweepSettings, cache_dir: str
     comm = MPI.COMM_WORLD if comm is None else comm
     cache = Path(cache_dir)
     cache.mkdir(parents=True, exist_ok=True)
-    threads = _default_threads(comm) if threads is None else threads
+    threads = threads_per_rank(comm) if threads is None else threads
     mine = [s for s in list(samples)[comm.rank::comm.size] if not (cache / cache_name(s, settings)).exists()]
     if stop_after is not None:
         mine = mine[:stop_after]

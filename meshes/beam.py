@@ -23,6 +23,7 @@ import numpy as np
 from mpi4py import MPI
 
 from foambase.errors import InputError
+from foambase.mpi import on_rank0
 
 __all__ = [
     "BEAM_VOLUME",
@@ -142,19 +143,17 @@ def distribute_gmsh(
     finalized. Returns ``model_to_mesh(gmsh.model, comm, 0, gdim=3)`` and the wall time (max over ranks).
     """
     start = time.perf_counter()
-    failure = None
+
+    def build_model():
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add(name)
+        build()
+        logger.info("gmsh built %r in %.2f s", name, time.perf_counter() - start)
+
     if comm.rank == 0:
         gmsh.initialize()
-        try:
-            gmsh.option.setNumber("General.Terminal", 0)
-            gmsh.model.add(name)
-            build()
-            logger.info("gmsh built %r in %.2f s", name, time.perf_counter() - start)
-        except Exception as exc:  # re-raised below on rank 0, after telling the other ranks
-            failure = exc
     try:
-        if comm.bcast(failure is not None, root=0):
-            raise failure if comm.rank == 0 else RuntimeError(f"gmsh failed to build {name!r} on rank 0")
+        on_rank0(comm, build_model, f"gmsh failed to build {name!r}")
         mesh, cell_tags, facet_tags = dolfinx.io.gmshio.model_to_mesh(gmsh.model, comm, 0, gdim=3)
     finally:
         if comm.rank == 0:

@@ -28,8 +28,8 @@ gmsh's 3D mesher did not finish in 10 minutes. This mesher needs no CAD boolean 
    solid and void parts (tetrahedra, pyramids, prisms), cut into tetrahedra with the quadrilateral diagonals
    chosen by the lowest periodic vertex rank (Dompierre et al. 1999), so neighbours — including the periodic
    image across a cube face — split their shared faces alike: the mesh is conforming and periodic.
-5. **Distribution**: the arrays are built on rank 0 and distributed by ``dolfinx.mesh.create_mesh`` with tags via
-   ``distribute_entity_data`` (as ``dolfinx.io.gmshio.model_to_mesh`` does; no gmsh is needed).
+5. **Distribution**: the arrays are built on rank 0 and distributed with their tags by
+   :func:`meshes.distribute.mesh_from_arrays` (as ``dolfinx.io.gmshio.model_to_mesh`` does; no gmsh is needed).
 
 Geometric error: the interface is the piecewise-linear interpolant of the strut surface, so the solid volume has an
 ``O(h²)`` error (below the true volume where the surface is convex); :func:`mesh_rve` logs it and the tests
@@ -46,11 +46,11 @@ from dataclasses import dataclass
 
 import dolfinx
 import numpy as np
-import ufl
-from dolfinx import cpp as _cpp
 from mpi4py import MPI
 
 from foambase.errors import ComputationError
+from foambase.mpi import on_rank0
+from meshes.distribute import mesh_from_arrays
 from meshes.foam import FoamParameterError, VoronoiFoam
 
 __all__ = ["FACE_TAGS", "MIN_VOLUME_FRACTION", "SNAP", "SOLID", "VOID", "ZERO_BAND", "RVEMesh", "mesh_rve"]
@@ -323,24 +323,6 @@ def _boundary_facets(x: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.n
     return np.concatenate(facets), np.concatenate(values)
 
 
-def _distribute(comm: MPI.Comm, x, cells, tags, facets, facet_values):
-    """The dolfinx mesh and tags from arrays on rank 0 (empty arrays elsewhere), as ``gmshio.model_to_mesh``."""
-    domain = ufl.Mesh(ufl.VectorElement("Lagrange", ufl.tetrahedron, 1))
-    mesh = dolfinx.mesh.create_mesh(comm, cells, x, domain)
-    tdim = mesh.topology.dim
-    entities, values = _cpp.io.distribute_entity_data(mesh._mesh, tdim, cells, tags)
-    mesh.topology.create_connectivity(tdim, 0)
-    cell_tags = dolfinx.mesh.meshtags_from_entities(mesh, tdim, _cpp.graph.AdjacencyList_int32(entities),
-                                                    values.astype(np.int32))
-    cell_tags.name = "Cell tags"
-    entities, values = _cpp.io.distribute_entity_data(mesh._mesh, tdim - 1, facets, facet_values)
-    mesh.topology.create_connectivity(tdim - 1, tdim)
-    facet_tags = dolfinx.mesh.meshtags_from_entities(mesh, tdim - 1, _cpp.graph.AdjacencyList_int32(entities),
-                                                     values.astype(np.int32))
-    facet_tags.name = "Facet tags"
-    return mesh, cell_tags, facet_tags
-
-
 def mesh_rve(foam: VoronoiFoam, h: float, comm: MPI.Comm = MPI.COMM_WORLD, order: int = 1,
              kind: str = "two-phase") -> RVEMesh:
     """Periodic conforming tetrahedral mesh of the foam's unit-cube RVE (see the module docstring).
@@ -381,26 +363,20 @@ def mesh_rve(foam: VoronoiFoam, h: float, comm: MPI.Comm = MPI.COMM_WORLD, order
     if kind not in _KINDS:
         raise FoamParameterError(f"mesh_rve: kind must be one of {_KINDS}, got {kind!r}")
     start = time.perf_counter()
-    failure = None
-    if comm.rank == 0:
+
+    def build():
         try:
             x, cells, tags = _cut_mesh(foam, math.ceil(1.0 / h - 1e-9))
             if kind == "solid":
                 cells, tags = cells[tags == SOLID], tags[tags == SOLID]
                 used, cells = np.unique(cells, return_inverse=True)
                 x, cells = x[used], cells.reshape(-1, 4)
-            facets, facet_values = _boundary_facets(x, cells)
-        except Exception as exc:  # re-raised below on rank 0, after telling the other ranks
-            failure = exc
-    if comm.bcast(failure is not None, root=0):
-        if comm.rank == 0:
-            raise ComputationError(f"mesh_rve failed for {name}, h={h}: {failure}") from failure
-        raise ComputationError(f"mesh_rve failed on rank 0 for {name}, h={h}")
-    if comm.rank != 0:
-        x, cells, tags = np.empty((0, 3)), np.empty((0, 4), dtype=np.int64), np.empty(0, dtype=np.int32)
-        facets, facet_values = np.empty((0, 3), dtype=np.int64), np.empty(0, dtype=np.int32)
-    mesh, cell_tags, facet_tags = _distribute(comm, x, cells.astype(np.int64), tags, facets.astype(np.int64),
-                                              facet_values)
+            return (x, cells, tags, *_boundary_facets(x, cells))
+        except Exception as exc:
+            raise ComputationError(f"mesh_rve failed for {name}, h={h}: {exc}") from exc
+
+    x, cells, tags, facets, facet_values = on_rank0(comm, build, "mesh_rve failed") or (None,) * 5
+    mesh, cell_tags, facet_tags = mesh_from_arrays(comm, x, cells, tags, facets, facet_values)
     meshing_s = comm.allreduce(time.perf_counter() - start, op=MPI.MAX)
     n_elements = mesh.topology.index_map(3).size_global
     log.info("mesh_rve: %s, %s mesh, h=%g: %d tetrahedra in %.2f s", name, kind, h, n_elements, meshing_s)

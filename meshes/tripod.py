@@ -37,8 +37,8 @@ angles) has a D3-symmetric discrete solution, e.g. zero torsion of the centre up
    the same and the copies conform. Nodes on a mirror side are merged topologically (copy g and copy g∘s of a node
    fixed by the mirror s are one node), not by a coordinate search. The arm tags of each image follow the arm it
    covers.
-3. dolfinx builds the mesh from the merged arrays on rank 0 (``create_mesh`` distributes it, as
-   ``gmshio.model_to_mesh`` does) with the cell tags carried over.
+3. dolfinx builds the mesh from the merged arrays on rank 0 (:func:`meshes.distribute.mesh_from_arrays`:
+   ``create_mesh`` distributes it, as ``gmshio.model_to_mesh`` does) with the cell tags carried over.
 
 The wedge's mirror sides constrain gmsh more than the whole plate did, so a given ``h`` gives more tetrahedra than
 the former whole-plate mesh (h = 4.6 mm: 3726 instead of 2738); :data:`PAPER_H` = 5.2 mm gives 2694 (paper: 2684).
@@ -58,14 +58,15 @@ import time
 from dataclasses import dataclass
 
 import dolfinx
-import dolfinx.cpp
 import dolfinx.io.gmshio
 import gmsh
 import numpy as np
 from mpi4py import MPI
 
 from foambase.errors import ComputationError, InputError
+from foambase.mpi import on_rank0
 from meshes.beam import TaggedMesh, check_order, generate_tetrahedra
+from meshes.distribute import mesh_from_arrays
 
 __all__ = [
     "ARM",
@@ -462,27 +463,12 @@ def make_tripod(
         )
     check_order(order)
     start = time.perf_counter()
-    failure, cell_type = None, None
-    x, cells, tags = np.empty((0, 3)), None, np.empty(0, dtype=np.int32)
-    if comm.rank == 0:
-        try:
-            x_wedge, cells_wedge, tags_wedge, cell_type = _mesh_wedge(geometry, h, order)
-            x, cells, tags = _replicate_wedge(x_wedge, cells_wedge, tags_wedge, 1e-9 * geometry.arm_length)
-        except Exception as exc:  # re-raised below on rank 0, after telling the other ranks
-            failure = exc
-    if comm.bcast(failure is not None, root=0):
-        raise failure if comm.rank == 0 else RuntimeError("gmsh failed to mesh the Tripod wedge on rank 0")
-    cell_type, n_nodes = comm.bcast((cell_type, None if cells is None else cells.shape[1]), root=0)
-    domain = dolfinx.io.gmshio.ufl_mesh(cell_type, 3)
-    perm = dolfinx.io.gmshio.cell_perm_array(dolfinx.mesh.CellType.tetrahedron, n_nodes)
-    cells = (cells if comm.rank == 0 else np.empty((0, n_nodes), dtype=np.int64))[:, perm]
-    mesh = dolfinx.mesh.create_mesh(comm, cells, x, domain)
-    entities, values = dolfinx.cpp.io.distribute_entity_data(mesh._mesh, 3, cells, tags)
-    mesh.topology.create_connectivity(3, 0)
-    cell_tags = dolfinx.mesh.meshtags_from_entities(mesh, 3, dolfinx.cpp.graph.AdjacencyList_int32(entities),
-                                                    values.astype(np.int32))
-    cell_tags.name = "Cell tags"
-    facet_tags = dolfinx.mesh.meshtags(mesh, 2, np.empty(0, dtype=np.int32), np.empty(0, dtype=np.int32))
-    facet_tags.name = "Facet tags"
+
+    def build():
+        x_wedge, cells_wedge, tags_wedge, cell_type = _mesh_wedge(geometry, h, order)
+        return (*_replicate_wedge(x_wedge, cells_wedge, tags_wedge, 1e-9 * geometry.arm_length), cell_type)
+
+    x, cells, tags, cell_type = on_rank0(comm, build, "gmsh failed to mesh the Tripod wedge") or (None,) * 4
+    mesh, cell_tags, facet_tags = mesh_from_arrays(comm, x, cells, tags, gmsh_cell_type=cell_type)
     meshing_s = comm.allreduce(time.perf_counter() - start, op=MPI.MAX)
     return TripodMesh(mesh, cell_tags, facet_tags, h, order, meshing_s, geometry=geometry)
