@@ -3,8 +3,8 @@
 The orientation field is a DG0 vector function whose value in each cell is the unit *l* axis (local axis 3
 of :class:`fenicsfoam.materials.TransverseIsotropic`) in global coordinates, in the reference configuration.
 Three constructors cover the scene files: :func:`uniform`, :func:`per_tag` and :func:`from_callable`
-(e.g. a spiral, evaluated at cell midpoints). Each normalises the directions and refuses zero or non-finite
-vectors.
+(e.g. the in-plane spiral :func:`spiral_directions`, evaluated at cell midpoints). Each normalises the
+directions and refuses zero or non-finite vectors.
 
 Values are computed on the cells this rank owns and copied to ghost cells by ``scatter_forward``, so the
 field is the same whatever the partition. :func:`cell_function` and :func:`owned_cell_tags` are the
@@ -14,6 +14,7 @@ building blocks shared with :class:`fenicsfoam.constitutive.MaterialField`.
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
@@ -22,12 +23,23 @@ from dolfinx.mesh import Mesh, MeshTagsMetaClass, compute_midpoints
 
 from foambase.errors import InputError
 
-__all__ = ["OrientationError", "cell_function", "from_callable", "owned_cell_tags", "per_tag", "uniform"]
+__all__ = [
+    "HANDEDNESS",
+    "OrientationError",
+    "cell_function",
+    "from_callable",
+    "owned_cell_tags",
+    "per_tag",
+    "spiral_directions",
+    "uniform",
+]
 
 logger = logging.getLogger(__name__)
 
 #: Tag reported by :func:`owned_cell_tags` for a cell that ``cell_tags`` does not mark.
 UNTAGGED = np.iinfo(np.int32).min
+#: Sign ``h`` of the tangential part of a :func:`spiral_directions` fibre, by handedness.
+HANDEDNESS = {"counterclockwise": 1.0, "clockwise": -1.0}
 
 
 class OrientationError(InputError):
@@ -162,3 +174,25 @@ def from_callable(mesh: Mesh, f: Callable[[np.ndarray], np.ndarray]) -> fem.Func
         raise OrientationError(f"from_callable: f must map points of shape {midpoints.shape} to directions of "
                                f"the same shape, got {directions.shape}")
     return cell_function(mesh, _normalised(mesh.comm, directions, "from_callable"), name="orientation")
+
+
+def spiral_directions(points: np.ndarray, pitch_deg: float, handedness: str,
+                      center: Sequence[float] = (0.0, 0.0)) -> np.ndarray:
+    """In-plane spiral fibre directions at ``points`` (n, 3): ``d = sin p e_r + h cos p e_θ``.
+
+    ``e_r`` is the horizontal unit vector from the vertical axis through ``center`` to the point,
+    ``e_θ = e_z × e_r``, ``p`` the pitch angle (0: circles, 90°: radial), and ``h = +1`` for
+    ``"counterclockwise"`` (the fibre traced outwards turns counter-clockwise seen from +z), ``-1`` for
+    ``"clockwise"`` (:data:`HANDEDNESS`). A mirror image (y → −y) of one handedness is the other. Points on the
+    axis get a zero vector (refused by the orientation builders). For :func:`from_callable`::
+
+        from_callable(mesh, lambda x: spiral_directions(x, 45.0, "clockwise"))
+    """
+    h = HANDEDNESS[handedness]
+    p = math.radians(pitch_deg)
+    r = np.asarray(points, dtype=float)[:, :2] - np.asarray(center, dtype=float)
+    norm = np.linalg.norm(r, axis=1, keepdims=True)
+    e_r = np.divide(r, norm, out=np.zeros_like(r), where=norm > 0)
+    e_theta = np.column_stack([-e_r[:, 1], e_r[:, 0]])
+    d = math.sin(p) * e_r + h * math.cos(p) * e_theta
+    return np.column_stack([d, np.zeros(len(d))])

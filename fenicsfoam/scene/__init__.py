@@ -1,0 +1,69 @@
+"""TOML scene files: a robot (mesh, regions, orientation, model), its load schedule, probes and outputs.
+
+A scene is read with the standard library's ``tomllib`` and validated key by key before anything is built:
+an unknown key, a value of the wrong type, a missing value or a value out of range raises :class:`SceneError`
+whose message names the key path (e.g. ``regions.arms.density``) and what would be valid. Only what the scene
+declares is built (a clamp if ``loads.clamp`` is given, servo horns if ``loads.servos`` is true, gravity if
+``loads.gravity`` is given, the listed probes). Every key is documented in the docs' scenes page.
+
+Layout of a scene (SI units; servo angles in degrees)::
+
+    name = "tripod_case_b"
+    [geometry]      builder = "beam" | "tripod", and the builder's parameters (h, order, sizes),
+                    or builder = "file", path = "robot.msh" (gmsh; relative to the scene file's directory)
+    [fem]           model = "linear" | "svk" | "corotational", degree = 1 | 2, [fem.petsc] options
+    [regions.NAME]  tags = int | [ints] | "named region", material = "isotropic" | "transverse_isotropic" | "foam"
+    [orientation]   kind = "uniform" | "per_tag" | "spiral" | "callable"  (only with anisotropic regions)
+    [loads]         gravity = [gx, gy, gz], clamp = [facet tags] | "name", servos = true
+    [[steps]]       label, gravity (factor), servo_deg (one angle or three), increments
+    probes = ["tip_deflection"] | ["center_height", "center_rotation"]
+    [outputs]       xdmf = true, png = true | false | [step labels]
+
+The package, in the order of the data flow:
+
+* :mod:`~fenicsfoam.scene.table` — the key-by-key TOML reader and :class:`SceneError`;
+* :mod:`~fenicsfoam.scene.kinds` — the registries of probe kinds and load kinds (validation and builder of each);
+* :mod:`~fenicsfoam.scene.schema` — one reader per section, :func:`parse_scene`, :func:`load_scene` → :class:`Scene`;
+* :mod:`~fenicsfoam.scene.build` — materials, mesh, orientation, motions, problem and probes (modelling choices);
+* :mod:`~fenicsfoam.scene.run` — :func:`run_scene`, the load loop;
+* :mod:`~fenicsfoam.scene.outputs` — :class:`SceneResult`, ``summary.json``, ``probes.csv``, XDMF, pictures.
+"""
+
+from fenicsfoam.materials import FOAM_FITS
+from fenicsfoam.orientation import HANDEDNESS, spiral_directions
+from fenicsfoam.scene.kinds import LOAD_KINDS, PROBE_KINDS, PROBE_UNITS, PROBES
+from fenicsfoam.scene.outputs import SceneResult, StepResult
+from fenicsfoam.scene.run import run_scene
+from fenicsfoam.scene.schema import (
+    MATERIAL_KEYS,
+    ORIENTATION_KINDS,
+    PETSC_PREFIX,
+    Region,
+    Scene,
+    Step,
+    load_scene,
+    parse_scene,
+)
+from fenicsfoam.scene.table import SceneError
+
+__all__ = [
+    "FOAM_FITS",
+    "HANDEDNESS",
+    "LOAD_KINDS",
+    "MATERIAL_KEYS",
+    "ORIENTATION_KINDS",
+    "PETSC_PREFIX",
+    "PROBES",
+    "PROBE_KINDS",
+    "PROBE_UNITS",
+    "Region",
+    "Scene",
+    "SceneError",
+    "SceneResult",
+    "Step",
+    "StepResult",
+    "load_scene",
+    "parse_scene",
+    "run_scene",
+    "spiral_directions",
+]

@@ -1,0 +1,181 @@
+"""Building what a validated scene declares, and nothing else: materials, mesh, orientation, motions, problem, probes.
+
+Materials are resolved first (a foam outside the table fails before any meshing), then the mesh is built by its
+builder, the DG0 material and orientation fields are laid on it, the load kinds add their rigid motions and the
+probe kinds their probes (:mod:`fenicsfoam.scene.kinds`). Modelling choices:
+
+* *Orientation on an isotropic scene* is rejected (:class:`SceneError` naming ``orientation``): every region
+  being isotropic, the isotropic energy is used and a direction field would silently do nothing, which is
+  more likely a mistake in the scene (e.g. a foam fitted isotropic by accident) than an intention.
+* *Servo rest angle*: 0° = the horns horizontal, the arm ends at their reference (flat-plate) position; the
+  flat plate is stress-free there and gravity is applied at that rest pose. The paper's positions are
+  rest = 0°, middle = 19°, top = 38° (Table I is compared as differences from rest). The real robot's
+  absolute horn angle at rest is not given by the paper; 0° is the pose where the mesh is undeformed.
+* *Spiral*: :func:`fenicsfoam.orientation.spiral_directions` about the vertical axis through ``center``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+from fenicsfoam import materials as _materials
+from fenicsfoam import orientation as orient
+from fenicsfoam.constitutive import MaterialField
+from fenicsfoam.materials import Isotropic, TransverseIsotropic
+from fenicsfoam.scene.kinds import LOAD_KINDS, PROBE_KINDS, BuildContext
+from fenicsfoam.scene.schema import PETSC_PREFIX, Region, Scene
+from fenicsfoam.scene.table import SceneError
+from fenicsfoam.solver import ElasticityProblem, LoadStep
+from homogenization.tensors import InadmissibleMaterialError
+
+__all__ = ["Model", "build_model", "load_steps", "resolve_material"]
+
+
+@dataclass
+class Model:
+    """What a scene builds: the mesh, the problem, the orientation field, the probes, the load steps."""
+
+    tagged: Any                       #: the mesh with its tags (and the builder's extras, e.g. the Tripod geometry)
+    problem: ElasticityProblem
+    orientation: Any                  #: the DG0 l-axis field, or None (isotropic scene)
+    probes: dict[str, Callable]       #: name → probe, called with the displacement
+    steps: list[LoadStep]
+    materials: dict[str, dict]        #: region name → the resolved material's record (for summaries)
+
+
+# --------------------------------------------------------------------------------------------------
+# Materials and orientation
+# --------------------------------------------------------------------------------------------------
+def resolve_material(region: Region):
+    """The :mod:`fenicsfoam.materials` object of a region (foam: through ``foam_material``)."""
+    path = f"regions.{region.name}"
+    try:
+        if region.material == "isotropic":
+            return Isotropic(**region.parameters)
+        if region.material == "transverse_isotropic":
+            return TransverseIsotropic(**region.parameters)
+        foam_material = getattr(_materials, "foam_material", None)
+        if foam_material is None:
+            raise SceneError(f"{path}: foam regions need fenicsfoam.materials.foam_material (the homogenized "
+                             "tables), which this installation lacks; use explicit constants")
+        params = dict(region.parameters)
+        return foam_material(params.pop("density"), params.pop("gamma"), params.pop("E_solid"),
+                             params.pop("nu_solid"), **params)
+    except (InadmissibleMaterialError, ValueError) as exc:
+        if isinstance(exc, SceneError):
+            raise
+        raise SceneError(f"{path}: {exc}") from exc
+
+
+def _material_record(material) -> dict[str, Any]:
+    return {"type": type(material).__name__, **asdict(material)}
+
+
+def _import_callable(spec: str) -> Callable[[np.ndarray], np.ndarray]:
+    module, _, name = spec.partition(":")
+    try:
+        return getattr(importlib.import_module(module), name)
+    except (ImportError, AttributeError) as exc:
+        raise SceneError(f"orientation.function: cannot import {spec!r}: {exc}") from exc
+
+
+def _check_orientation(scene: Scene, materials: Mapping[str, Any]) -> None:
+    """An orientation is required with a TI region and refused when every region is isotropic."""
+    anisotropic = [name for name, m in materials.items() if not isinstance(m, Isotropic)]
+    if not anisotropic and scene.orientation is not None:
+        raise SceneError("orientation: every region is isotropic, so an orientation field would have no effect; "
+                         "remove the [orientation] table (or make a region anisotropic)")
+    if anisotropic and scene.orientation is None:
+        raise SceneError(f"orientation: missing; the transversely isotropic region(s) {', '.join(anisotropic)} "
+                         "need an [orientation] table (kind = uniform, per_tag, spiral or callable)")
+    if scene.orientation is not None and scene.orientation["kind"] == "callable":
+        _import_callable(scene.orientation["function"])
+
+
+def _spiral(spec: Mapping[str, Any]) -> Callable[[np.ndarray], np.ndarray]:
+    return lambda x: orient.spiral_directions(x, spec["pitch_deg"], spec["handedness"], spec["center"])
+
+
+#: Orientation kinds: kind → builder(mesh, cell_tags, spec) of the DG0 l-axis field.
+ORIENTATIONS: dict[str, Callable] = {
+    "uniform": lambda mesh, cell_tags, spec: orient.uniform(mesh, spec["direction"]),
+    "per_tag": lambda mesh, cell_tags, spec: orient.per_tag(mesh, cell_tags, spec["directions"],
+                                                            default=spec["default"]),
+    "spiral": lambda mesh, cell_tags, spec: orient.from_callable(mesh, _spiral(spec)),
+    "callable": lambda mesh, cell_tags, spec: orient.from_callable(mesh, _import_callable(spec["function"])),
+}
+
+
+def _build_orientation(scene: Scene, mesh, cell_tags):
+    """The DG0 l-axis field the scene declares (None for an isotropic scene)."""
+    spec = scene.orientation
+    if spec is None:
+        return None
+    try:
+        return ORIENTATIONS[spec["kind"]](mesh, cell_tags, spec)
+    except orient.OrientationError as exc:
+        raise SceneError(f"orientation: {exc}") from exc
+
+
+# --------------------------------------------------------------------------------------------------
+# Mesh
+# --------------------------------------------------------------------------------------------------
+def _mesh_file(comm, params: dict[str, Any]):
+    from meshes.msh import read_msh
+    return read_msh(comm, params["path"])
+
+
+def _mesh_beam(comm, params: dict[str, Any]):
+    from meshes.beam import make_beam
+    return make_beam(comm, **params)
+
+
+def _mesh_tripod(comm, params: dict[str, Any]):
+    from meshes.tripod import TripodGeometry, make_tripod
+    h, order = params.pop("h"), params.pop("order")
+    try:
+        geometry = TripodGeometry(**params)
+    except ValueError as exc:
+        raise SceneError(f"geometry: {exc}") from exc
+    return make_tripod(comm, h, geometry, order)
+
+
+#: Geometry builders: ``[geometry] builder`` → function(comm, parameters) of the tagged mesh.
+MESHERS: dict[str, Callable] = {"file": _mesh_file, "beam": _mesh_beam, "tripod": _mesh_tripod}
+
+
+# --------------------------------------------------------------------------------------------------
+# The model
+# --------------------------------------------------------------------------------------------------
+def load_steps(scene: Scene) -> list[LoadStep]:
+    """The scene's schedule as solver load steps (servo angles in radians)."""
+    return [LoadStep(s.label, gravity=s.gravity, increments=s.increments,
+                     angles={} if s.servo_deg is None else
+                     {f"servo{i}": math.radians(angle) for i, angle in enumerate(s.servo_deg)})
+            for s in scene.steps]
+
+
+def build_model(scene: Scene, comm) -> Model:
+    """Build the mesh, the problem and the probes of a validated scene (collective)."""
+    resolved = {region.name: resolve_material(region) for region in scene.regions}  # before meshing: fail fast
+    _check_orientation(scene, resolved)
+    tagged = MESHERS[scene.builder](comm, dict(scene.geometry))
+    mesh, cell_tags = tagged.mesh, tagged.cell_tags
+    materials = {tag: resolved[region.name] for region in scene.regions for tag in region.tags}
+    field = MaterialField.from_regions(mesh, cell_tags, materials)
+    a = _build_orientation(scene, mesh, cell_tags)
+    context = BuildContext(scene, tagged)
+    motions = [m for key, kind in LOAD_KINDS.items() for m in kind.motions(scene.loads[key], context)]
+    gravity = (0.0, 0.0, 0.0) if scene.gravity is None else scene.gravity
+    problem = ElasticityProblem(mesh, field, orientation=a, model=scene.model, degree=scene.degree,
+                                gravity=gravity, motions=motions, prefix=PETSC_PREFIX, options=dict(scene.petsc))
+    context = BuildContext(scene, tagged, problem.V)
+    probes = {name: PROBE_KINDS[name].build(context) for name in scene.probes}
+    return Model(tagged, problem, a, probes, load_steps(scene),
+                 {region.name: _material_record(resolved[region.name]) for region in scene.regions})

@@ -1,0 +1,368 @@
+"""A scene's schema: the TOML read section by section and validated into a :class:`Scene` before anything is built.
+
+:func:`parse_scene` reads the sections in the order of the file's layout (``[geometry]``, ``[fem]``,
+``[regions.*]``, ``[orientation]``, ``[loads]``, ``[[steps]]``, ``probes``, ``[outputs]``), one reader each; the
+first problem raises :class:`~fenicsfoam.scene.table.SceneError` naming its key path. Probes and load keys are
+validated by their entries in :mod:`fenicsfoam.scene.kinds`.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import os
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from fenicsfoam.materials import FOAM_FITS
+from fenicsfoam.orientation import HANDEDNESS
+from fenicsfoam.scene.kinds import LOAD_KINDS, PROBE_KINDS, MeshInfo
+from fenicsfoam.scene.table import SceneError, _Table, _tags, _type_name, _vector
+
+__all__ = ["Region", "Scene", "Step", "load_scene", "parse_scene"]
+
+MATERIAL_KEYS: dict[str, dict[str, tuple[bool, float | None]]] = {
+    # key: (required, default)
+    "isotropic": {"E": (True, None), "nu": (True, None), "rho": (False, 0.0)},
+    "transverse_isotropic": {"E_t": (True, None), "E_l": (True, None), "nu_t": (True, None),
+                             "nu_tl": (True, None), "G_l": (True, None), "rho": (False, 0.0)},
+    "foam": {"density": (True, None), "gamma": (True, None), "E_solid": (True, None), "nu_solid": (True, None),
+             "rho_solid": (False, 0.0)},
+}
+_POSITIVE = {"check": lambda v: v > 0, "valid": "a number > 0"}
+#: Range checks of the material constants (the material classes check admissibility again).
+MATERIAL_CHECKS: dict[str, dict[str, Any]] = {
+    "E": _POSITIVE, "E_t": _POSITIVE, "E_l": _POSITIVE, "G_l": _POSITIVE, "E_solid": _POSITIVE,
+    "nu": {"check": lambda v: -1 < v < 0.5, "valid": "-1 < nu < 0.5"},
+    "nu_solid": {"check": lambda v: -1 < v < 0.5, "valid": "-1 < nu_solid < 0.5"},
+    "nu_t": {"check": lambda v: -1 < v < 1, "valid": "-1 < nu_t < 1"},
+    "rho": {"check": lambda v: v >= 0, "valid": "a density >= 0 (kg/m³)"},
+    "rho_solid": {"check": lambda v: v >= 0, "valid": "a density >= 0 (kg/m³)"},
+    "density": {"check": lambda v: 0 < v <= 1, "valid": "a relative density in (0, 1]"},
+    "gamma": {"check": lambda v: 0 < v <= 1, "valid": "an anisotropy ratio in (0, 1] (1: isotropic)"},
+}
+ORIENTATION_KINDS = ("uniform", "per_tag", "spiral", "callable")
+#: The options prefix of every scene's SNES (command-line options: ``-scene_snes_rtol 1e-8``).
+PETSC_PREFIX = "scene_"
+
+
+# --------------------------------------------------------------------------------------------------
+# The parsed scene
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Region:
+    """A material region: cell tags and either explicit constants or a foam resolved by ``foam_material``."""
+
+    name: str
+    tags: tuple[int, ...]
+    material: str                     #: "isotropic" | "transverse_isotropic" | "foam"
+    parameters: Mapping[str, Any]     #: the material's keyword arguments (foam: also ``fit``)
+
+
+@dataclass(frozen=True)
+class Step:
+    """A load step of the schedule: gravity factor, horn angles (degrees), increments."""
+
+    label: str
+    gravity: float | None
+    servo_deg: tuple[float, float, float] | None
+    increments: int
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A validated scene (:func:`parse_scene`); ``raw`` is the scene as read."""
+
+    raw: Mapping[str, Any]
+    name: str
+    builder: str
+    geometry: Mapping[str, Any]       #: builder keyword arguments (h, order, sizes), or the mesh file's path
+    facets: Mapping[str, tuple[int, ...]]  #: named facet groups of the mesh
+    model: str                        #: name of the constitutive model (``fenicsfoam.constitutive.MODELS``)
+    degree: int
+    petsc: Mapping[str, Any]
+    regions: tuple[Region, ...]
+    orientation: Mapping[str, Any] | None
+    loads: Mapping[str, Any]          #: the value of every load kind (:data:`fenicsfoam.scene.kinds.LOAD_KINDS`)
+    steps: tuple[Step, ...]
+    probes: tuple[str, ...]
+    xdmf: bool
+    png: tuple[str, ...]              #: labels of the steps pictured (the orientation is pictured with any)
+
+    @property
+    def gravity(self) -> tuple[float, float, float] | None:
+        """The full gravity vector (m/s²), or ``None``."""
+        return self.loads["gravity"]
+
+    @property
+    def clamp(self) -> tuple[int, ...]:
+        """Facet tags held fixed."""
+        return self.loads["clamp"]
+
+    @property
+    def servos(self) -> bool:
+        """Whether the Tripod's servo horns carry the arm ends."""
+        return self.loads["servos"]
+
+
+# --------------------------------------------------------------------------------------------------
+# Section readers
+# --------------------------------------------------------------------------------------------------
+def _builder_info(builder: str) -> tuple[dict[str, Any], dict[str, tuple[int, ...]], dict[str, tuple[int, ...]]]:
+    """Defaults of the builder's parameters, its named cell regions and named facet groups."""
+    if builder == "beam":
+        from meshes.beam import BEAM_VOLUME, CLAMPED_FACE, FIG6_BEAM, TIP_FACE
+        return ({**FIG6_BEAM, "order": 1}, {"beam": (BEAM_VOLUME,)},
+                {"clamped": (CLAMPED_FACE,), "tip": (TIP_FACE,)})
+    from dataclasses import fields
+
+    from meshes.tripod import PAPER_H, REGIONS, TripodGeometry
+    defaults = {f.name: f.default for f in fields(TripodGeometry)}
+    return {"h": PAPER_H, "order": 1, **defaults}, dict(REGIONS), {}
+
+
+def _read_mesh_file(geometry: _Table, base: Path | None) -> MeshInfo:
+    """``builder = "file"``: a gmsh ``.msh`` file; its physical groups are read (not the mesh) to validate."""
+    from meshes.msh import physical_groups
+
+    path = Path(geometry.string("path", required=True))
+    geometry.done()
+    if not path.is_absolute() and base is not None:
+        path = base / path
+    if not path.is_file():
+        raise SceneError(f"geometry.path: mesh file {str(path)!r} does not exist")
+    try:
+        groups = physical_groups(path)
+    except ValueError as exc:
+        raise SceneError(f"geometry.path: {exc}") from exc
+    return MeshInfo("file", {"path": path}, {n: (t,) for n, t in groups.cell_names.items()},
+                    {n: (t,) for n, t in groups.facet_names.items()}, groups.cells, groups.facets)
+
+
+def _read_geometry(scene: _Table, base: Path | None) -> MeshInfo:
+    geometry = scene.table("geometry", required=True)
+    builder = geometry.string("builder", required=True, choices=("beam", "tripod", "file"))
+    if builder == "file":
+        return _read_mesh_file(geometry, base)
+    defaults, regions, facets = _builder_info(builder)
+    params = {}
+    for key, default in defaults.items():
+        if key == "order":
+            params[key] = geometry.integer(key, default=default, choices=(1, 2))
+        elif key == "pivot_z":
+            params[key] = geometry.number(key, default=default)
+        elif key == "fillet_radius":
+            params[key] = geometry.number(key, default=default, check=lambda v: v >= 0, valid="a length >= 0 (m)")
+        else:
+            params[key] = geometry.number(key, default=default, check=lambda v: v > 0, valid="a length > 0 (m)")
+    geometry.done()
+    return MeshInfo(builder, params, regions, facets, frozenset().union(*regions.values()),
+                    frozenset().union(*facets.values()))
+
+
+def _read_fem(scene: _Table) -> tuple[str, int, dict[str, Any]]:
+    """``[fem]``: model name, degree and PETSc options."""
+    from fenicsfoam.constitutive import MODELS
+
+    fem = scene.table("fem") or _Table({}, "fem")
+    model = fem.string("model", default="corotational", choices=tuple(MODELS))
+    degree = fem.integer("degree", default=1, choices=(1, 2))
+    petsc = fem.table("petsc")
+    options = {}
+    if petsc is not None:
+        for key, value in petsc.data.items():
+            if not isinstance(value, str | int | float | bool):
+                raise SceneError(f"{petsc.key(key)}: expected a string, number or boolean PETSc option value, "
+                                 f"got {_type_name(value)}")
+            options[key] = value
+    fem.done()
+    return model, degree, options
+
+
+def _read_region(name: str, table: _Table, named: Mapping[str, tuple[int, ...]]) -> Region:
+    tags = _tags(table.raw("tags", required=True), table.key("tags"), named, "region")
+    material = table.string("material", required=True, choices=tuple(MATERIAL_KEYS))
+    parameters = {key: table.number(key, required=required, default=default, **MATERIAL_CHECKS.get(key, {}))
+                  for key, (required, default) in MATERIAL_KEYS[material].items()}
+    if material == "foam":
+        parameters["fit"] = table.string("fit", default="transverse", choices=FOAM_FITS)
+    table.done()
+    return Region(name, tags, material, parameters)
+
+
+def _read_regions(scene: _Table, mesh: MeshInfo) -> tuple[Region, ...]:
+    """``[regions.NAME]``: every cell tag of the mesh in exactly one region."""
+    table = scene.table("regions", required=True)
+    if not table.data:
+        raise SceneError("regions: at least one region is required")
+    regions = tuple(_read_region(key, table.table(key), mesh.regions) for key in list(table.data))
+    table.done()
+    owner: dict[int, str] = {}
+    for region in regions:
+        for tag in region.tags:
+            if tag in owner:
+                raise SceneError(f"regions.{region.name}.tags: cell tag {tag} is already in region {owner[tag]!r}")
+            owner[tag] = region.name
+    all_tags = set(mesh.cell_tags)
+    unknown = sorted(set(owner) - all_tags)
+    if unknown:
+        raise SceneError(f"regions.{owner[unknown[0]]}.tags: cell tag {unknown[0]} is not a tag of the "
+                         f"{mesh.builder} mesh (tags: {sorted(all_tags)})")
+    missing = sorted(all_tags - set(owner))
+    if missing:
+        raise SceneError(f"regions: cell tags {missing} of the {mesh.builder} mesh have no region (every cell needs "
+                         "a material)")
+    return regions
+
+
+def _read_orientation(scene: _Table, mesh: MeshInfo) -> dict[str, Any] | None:
+    """``[orientation]`` (optional): the kind and its parameters."""
+    table = scene.table("orientation")
+    if table is None:
+        return None
+    kind = table.string("kind", required=True, choices=ORIENTATION_KINDS)
+    spec: dict[str, Any] = {"kind": kind}
+    if kind == "uniform":
+        spec["direction"] = table.vector("direction", 3, required=True)
+    elif kind == "per_tag":
+        directions = table.table("directions", required=True)
+        spec["directions"] = {}
+        for key in directions.data:
+            tags = _tags(int(key) if key.lstrip("-").isdigit() else key, directions.key(key), mesh.regions, "region")
+            d = directions.vector(key, 3, required=True)
+            spec["directions"].update(dict.fromkeys(tags, d))
+        directions.done()
+        spec["default"] = table.vector("default", 3)
+    elif kind == "spiral":
+        spec["pitch_deg"] = table.number("pitch_deg", required=True, check=lambda v: 0 <= v <= 90,
+                                         valid="an angle in [0, 90] degrees (0: circles, 90: radial)")
+        spec["handedness"] = table.string("handedness", required=True, choices=tuple(HANDEDNESS))
+        spec["center"] = table.vector("center", 2, default=[0.0, 0.0])
+    else:
+        function = table.string("function", required=True)
+        if function.count(":") != 1:
+            raise SceneError(f"{table.key('function')}: expected 'module:function', got {function!r}")
+        spec["function"] = function
+    table.done()
+    return spec
+
+
+def _read_loads(scene: _Table, mesh: MeshInfo) -> dict[str, Any]:
+    """``[loads]``: one value per load kind (:data:`~fenicsfoam.scene.kinds.LOAD_KINDS`)."""
+    table = scene.table("loads") or _Table({}, "loads")
+    loads = {key: kind.read(table, key, mesh) for key, kind in LOAD_KINDS.items()}
+    table.done()
+    return loads
+
+
+def _read_step(table: _Table, servos: bool) -> Step:
+    label = table.string("label", required=True)
+    gravity = table.number("gravity", check=lambda v: v >= 0, valid="a load factor >= 0 (1: full gravity)")
+    servo = table.raw("servo_deg")
+    if servo is not None:
+        if not servos:
+            raise SceneError(f"{table.key('servo_deg')}: the scene has no servos; set loads.servos = true "
+                             "(Tripod) or remove servo_deg")
+        if isinstance(servo, int | float) and not isinstance(servo, bool) and math.isfinite(servo):
+            servo = (float(servo),) * 3
+        else:
+            servo = _vector(servo, 3, table.key("servo_deg"))
+    increments = table.integer("increments", default=1, minimum=1)
+    table.done()
+    return Step(label, gravity, servo, increments)
+
+
+def _read_steps(scene: _Table, loads: Mapping[str, Any]) -> tuple[Step, ...]:
+    """``[[steps]]``: a non-empty schedule with distinct labels."""
+    value = scene.raw("steps", required=True)
+    if not isinstance(value, list) or not value:
+        raise SceneError(f"steps: expected a non-empty array of tables ([[steps]]), got {_type_name(value)}")
+    steps = tuple(_read_step(_Table(s, f"steps[{i}]"), loads["servos"]) for i, s in enumerate(value))
+    labels = [s.label for s in steps]
+    duplicated = sorted({label for label in labels if labels.count(label) > 1})
+    if duplicated:
+        raise SceneError(f"steps: labels must be distinct, {duplicated[0]!r} is repeated")
+    if loads["gravity"] is None and any(s.gravity for s in steps):
+        raise SceneError("loads.gravity: a step sets a gravity factor but the scene gives no gravity vector")
+    return steps
+
+
+def _read_probes(scene: _Table, mesh: MeshInfo, loads: Mapping[str, Any]) -> tuple[str, ...]:
+    """``probes``: names of :data:`~fenicsfoam.scene.kinds.PROBE_KINDS` the mesh can provide."""
+    value = scene.raw("probes", default=[])
+    if not isinstance(value, list) or not all(isinstance(p, str) for p in value):
+        raise SceneError(f"probes: expected an array of probe names, got {_type_name(value)} {value!r}")
+    for probe in value:
+        if probe not in PROBE_KINDS:
+            raise SceneError(f"probes: unknown probe {probe!r}; valid: {', '.join(PROBE_KINDS)}")
+        PROBE_KINDS[probe].check(probe, mesh, loads)
+    return tuple(dict.fromkeys(value))
+
+
+def _read_outputs(scene: _Table, labels: list[str]) -> tuple[bool, tuple[str, ...]]:
+    """``[outputs]``: the XDMF series, and the steps pictured."""
+    outputs = scene.table("outputs") or _Table({}, "outputs")
+    xdmf = outputs.boolean("xdmf", True)
+    png = outputs.raw("png", True)
+    if isinstance(png, bool):
+        pictured = labels if png else []
+    elif isinstance(png, list) and all(label in labels for label in png):
+        pictured = list(png)
+    else:
+        raise SceneError(f"outputs.png: expected true, false or an array of step labels ({labels}), "
+                         f"got {_type_name(png)} {png!r}")
+    outputs.done()
+    return xdmf, tuple(pictured)
+
+
+# --------------------------------------------------------------------------------------------------
+# Entry points
+# --------------------------------------------------------------------------------------------------
+def parse_scene(data: Mapping[str, Any], base: str | os.PathLike | None = None) -> Scene:
+    """Validate a scene given as a dict (as ``tomllib`` reads it) and return the :class:`Scene`.
+
+    ``base`` is the directory a relative ``geometry.path`` refers to (:func:`load_scene` passes the scene
+    file's directory; default: the current directory).
+
+    Raises
+    ------
+    SceneError
+        On the first problem found, naming its key path (e.g. ``regions.arms.density``) and what is valid.
+
+    """
+    scene = _Table(dict(data), "")
+    name = scene.string("name", default="scene")
+    scene.string("description", default="")
+    mesh = _read_geometry(scene, None if base is None else Path(base))
+    model, degree, petsc = _read_fem(scene)
+    regions = _read_regions(scene, mesh)
+    orientation = _read_orientation(scene, mesh)
+    loads = _read_loads(scene, mesh)
+    steps = _read_steps(scene, loads)
+    probes = _read_probes(scene, mesh, loads)
+    xdmf, png = _read_outputs(scene, [s.label for s in steps])
+    scene.done()
+    return Scene(raw=copy.deepcopy(dict(data)), name=name, builder=mesh.builder, geometry=mesh.params,
+                 facets=mesh.facets, model=model, degree=degree, petsc=petsc, regions=regions,
+                 orientation=orientation, loads=loads, steps=steps, probes=probes, xdmf=xdmf, png=png)
+
+
+def load_scene(source: str | os.PathLike | Mapping[str, Any]) -> Scene:
+    """Read and validate a scene from a TOML file (path) or a dict; :class:`SceneError` names the problem."""
+    if isinstance(source, Mapping):
+        return parse_scene(source)
+    path = Path(source)
+    try:
+        with path.open("rb") as f:
+            data = tomllib.load(f)
+    except tomllib.TOMLDecodeError as exc:  # the message gives line and column
+        raise SceneError(f"{path}: not valid TOML: {exc}") from exc
+    except OSError as exc:
+        raise SceneError(f"cannot read scene {path}: {exc}") from exc
+    try:
+        return parse_scene(data, base=path.parent)
+    except SceneError as exc:
+        raise SceneError(f"{path}: {exc}") from exc
