@@ -44,7 +44,7 @@ MATERIAL = TransverseIsotropic(E_t=1.15e6, E_l=0.4e6, nu_t=0.3, nu_tl=0.15, G_l=
 #: Linear solvers: PETSc options per model ("gamg": CG, or GMRES for the non-symmetric corotational TI tangent).
 SOLVERS = {
     "mumps": lambda model: {},
-    "gamg": lambda model: {"ksp_type": "gmres" if model == "corotational" else "cg", "ksp_rtol": 1e-8,
+    "gamg": lambda model: {"ksp_type": "cg" if MODELS[model].symmetric_tangent else "gmres", "ksp_rtol": 1e-8,
                            "pc_type": "gamg"},
 }
 #: PETSc events of the "pc setup" (factorization or AMG set-up) and "ksp" (solve, without the set-up) columns.

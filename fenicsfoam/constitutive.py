@@ -41,6 +41,12 @@ from foambase.errors import InputError
 
 __all__ = [
     "MODELS",
+    "Corotational",
+    "Linear",
+    "Model",
+    "SaintVenantKirchhoff",
+    "as_model",
+    "corotational_rotation_tangent",
     "MaterialField",
     "PolarRotation",
     "deformation_gradient",
@@ -54,9 +60,6 @@ __all__ = [
 ]
 
 logger = logging.getLogger(__name__)
-
-#: Names of the constitutive models.
-MODELS = ("linear", "svk", "corotational")
 
 _ISOTROPIC_MODULI = ("lmbda", "mu")
 _TI_MODULI = ("lmbda", "mu_T", "mu_L", "alpha", "beta")
@@ -224,30 +227,6 @@ class PolarRotation:
 # --------------------------------------------------------------------------------------------------
 # Models
 # --------------------------------------------------------------------------------------------------
-def _check_model(model: str) -> None:
-    if model not in MODELS:
-        raise InputError(f"unknown model {model!r}; valid models are {', '.join(MODELS)}")
-
-
-def _strain(model: str, u: fem.Function, rotation: PolarRotation | None) -> ufl.core.expr.Expr:
-    """The model's strain: ``ε`` (linear), ``E`` (svk) or ``ε_c = sym(RᵀF) - I`` (corotational)."""
-    _check_model(model)
-    if model == "linear":
-        return small_strain(u)
-    F = deformation_gradient(u)
-    if model == "svk":
-        return green_lagrange(F)
-    if rotation is None:
-        raise InputError("the corotational model needs a PolarRotation of the displacement")
-    return ufl.sym(rotation.R.T * F) - ufl.Identity(len(u))
-
-
-def strain_energy_density(model: str, u: fem.Function, material: MaterialField, orientation: fem.Function | None,
-                          rotation: PolarRotation | None = None) -> ufl.core.expr.Expr:
-    """Energy per unit reference volume ``ψ = ½ e:C:e`` of the model's strain ``e`` (``ε``, ``E`` or ``ε_c``)."""
-    return quadratic_energy(_strain(model, u, rotation), material, orientation)
-
-
 def _cross_matrix(w: ufl.core.expr.Expr) -> ufl.core.expr.Expr:
     """``[w]×``, the skew matrix with ``[w]× v = w × v``."""
     return ufl.as_matrix([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
@@ -279,16 +258,114 @@ def corotational_rotation_tangent(u: fem.Function, du: ufl.Argument, material: M
     return R * (Omega * sigma - stress(ufl.sym(Omega * U), material, orientation))
 
 
-def first_piola_kirchhoff(model: str, u: fem.Function, material: MaterialField, orientation: fem.Function | None,
-                          rotation: PolarRotation | None = None) -> ufl.core.expr.Expr:
+@dataclass(frozen=True)
+class Model:
+    """A constitutive model: a strain measure of ``u`` and the first Piola–Kirchhoff stress of its quadratic energy.
+
+    Subclasses define :meth:`strain` and :meth:`first_piola_kirchhoff`; the attributes say what a solver must
+    provide or check. The models are :data:`MODELS`, by name; :func:`as_model` accepts a name or a model.
+    """
+
+    name: str
+    needs_rotation: bool = False     #: the strain uses the rotation ``R`` of ``F = R U`` (a :class:`PolarRotation`)
+    finite_strain: bool = True       #: frame invariant; an element with ``det F <= 0`` makes an increment fail
+    symmetric_tangent: bool = True   #: the exact tangent is symmetric (CG applies; else GMRES)
+
+    def strain(self, u: fem.Function, rotation: PolarRotation | None = None) -> ufl.core.expr.Expr:
+        """The model's strain measure of ``u``."""
+        raise NotImplementedError
+
+    def first_piola_kirchhoff(self, u: fem.Function, material: MaterialField, orientation: fem.Function | None,
+                              rotation: PolarRotation | None = None) -> ufl.core.expr.Expr:
+        """The first Piola–Kirchhoff stress ``P`` of ``u``."""
+        raise NotImplementedError
+
+    def rotation_tangent(self, u: fem.Function, du: ufl.Argument, material: MaterialField,
+                         orientation: fem.Function | None, rotation: PolarRotation | None) -> ufl.core.expr.Expr | None:
+        """What ``ufl.derivative`` of ``P`` at frozen ``R`` misses of the exact tangent ``dP`` (``None``: nothing)."""
+        return None
+
+    def energy(self, u: fem.Function, material: MaterialField, orientation: fem.Function | None,
+               rotation: PolarRotation | None = None) -> ufl.core.expr.Expr:
+        """Energy per unit reference volume ``ψ = ½ e:C:e`` of the model's strain ``e``."""
+        return quadratic_energy(self.strain(u, rotation), material, orientation)
+
+    def __str__(self) -> str:
+        return self.name
+
+
+class Linear(Model):
+    """Small strain: ``ε = sym ∇u``, ``P = σ(ε)`` (not frame invariant)."""
+
+    def strain(self, u, rotation=None):
+        """``ε = sym ∇u``."""
+        return small_strain(u)
+
+    def first_piola_kirchhoff(self, u, material, orientation, rotation=None):
+        """``P = σ(ε)``."""
+        return stress(self.strain(u), material, orientation)
+
+
+class SaintVenantKirchhoff(Model):
+    """St-Venant–Kirchhoff: ``E = (FᵀF - I)/2``, ``S = ∂ψ/∂E``, ``P = F S``."""
+
+    def strain(self, u, rotation=None):
+        """``E = (FᵀF - I)/2``."""
+        return green_lagrange(deformation_gradient(u))
+
+    def first_piola_kirchhoff(self, u, material, orientation, rotation=None):
+        """``P = F S(E)``."""
+        return deformation_gradient(u) * stress(self.strain(u), material, orientation)
+
+
+class Corotational(Model):
+    """Corotational: ``ε_c = sym(RᵀF) - I``, ``P = R σ(ε_c)`` with ``R`` held fixed in ``ufl.derivative``."""
+
+    def strain(self, u, rotation=None):
+        """``ε_c = sym(RᵀF) - I``."""
+        if rotation is None:
+            raise InputError("the corotational model needs a PolarRotation of the displacement")
+        return ufl.sym(rotation.R.T * deformation_gradient(u)) - ufl.Identity(len(u))
+
+    def first_piola_kirchhoff(self, u, material, orientation, rotation=None):
+        """``P = R σ(ε_c)``."""
+        strain = self.strain(u, rotation)  # refuses a missing rotation
+        return rotation.R * stress(strain, material, orientation)
+
+    def rotation_tangent(self, u, du, material, orientation, rotation):
+        """The change of ``R`` with ``u`` (:func:`corotational_rotation_tangent`)."""
+        return corotational_rotation_tangent(u, du, material, orientation, rotation)
+
+
+#: The constitutive models by name.
+MODELS: dict[str, Model] = {
+    "linear": Linear("linear", finite_strain=False),
+    "svk": SaintVenantKirchhoff("svk"),
+    "corotational": Corotational("corotational", needs_rotation=True, symmetric_tangent=False),
+}
+
+
+def as_model(model: str | Model) -> Model:
+    """The :class:`Model` named ``model`` in :data:`MODELS` (a model is returned as is)."""
+    if isinstance(model, Model):
+        return model
+    if model not in MODELS:
+        raise InputError(f"unknown model {model!r}; valid models are {', '.join(MODELS)}")
+    return MODELS[model]
+
+
+def strain_energy_density(model: str | Model, u: fem.Function, material: MaterialField,
+                          orientation: fem.Function | None, rotation: PolarRotation | None = None
+                          ) -> ufl.core.expr.Expr:
+    """Energy per unit reference volume ``ψ = ½ e:C:e`` of the model's strain ``e`` (``ε``, ``E`` or ``ε_c``)."""
+    return as_model(model).energy(u, material, orientation, rotation)
+
+
+def first_piola_kirchhoff(model: str | Model, u: fem.Function, material: MaterialField,
+                          orientation: fem.Function | None, rotation: PolarRotation | None = None
+                          ) -> ufl.core.expr.Expr:
     """First Piola–Kirchhoff stress of the model: ``σ(ε)``, ``F S(E)`` or ``R σ(ε_c)`` (module docstring).
 
     ``rotation`` (a :class:`PolarRotation` of ``u``) is required by, and only used by, ``corotational``.
     """
-    e = _strain(model, u, rotation)
-    sigma = stress(e, material, orientation)
-    if model == "linear":
-        return sigma
-    if model == "svk":
-        return deformation_gradient(u) * sigma
-    return rotation.R * sigma
+    return as_model(model).first_piola_kirchhoff(u, material, orientation, rotation)

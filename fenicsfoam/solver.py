@@ -44,14 +44,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from fenicsfoam.bcs import MotionBC, RigidMotion
-from fenicsfoam.constitutive import (
-    MODELS,
-    MaterialField,
-    PolarRotation,
-    corotational_rotation_tangent,
-    deformation_gradient,
-    first_piola_kirchhoff,
-)
+from fenicsfoam.constitutive import MaterialField, Model, PolarRotation, as_model, deformation_gradient
 from fenicsfoam.stability import EllipticityCheck, ellipticity_margin
 from foambase.errors import InputError, NotConvergedError
 from foambase.nullspace import rigid_body_modes
@@ -190,7 +183,8 @@ class ElasticityProblem:
         DG0 unit *l* axis per cell (:mod:`fenicsfoam.orientation`); required if some region is transversely
         isotropic, refused if all are isotropic (the isotropic form is used and no orientation is needed).
     model
-        ``"linear"``, ``"svk"`` or ``"corotational"``.
+        A :class:`~fenicsfoam.constitutive.Model` or its name in :data:`~fenicsfoam.constitutive.MODELS`
+        (``"linear"``, ``"svk"`` or ``"corotational"``); ``self.model`` is the model object.
     degree
         Lagrange degree of the displacement, 1 or 2.
     gravity
@@ -214,12 +208,11 @@ class ElasticityProblem:
     _ROUNDOFF_FLOOR = 1e-13
 
     def __init__(self, mesh: Mesh, material: MaterialField, *, orientation: fem.Function | None = None,
-                 model: str = "corotational", degree: int = 1, gravity: Sequence[float] = (0.0, 0.0, -9.81),
+                 model: str | Model = "corotational", degree: int = 1, gravity: Sequence[float] = (0.0, 0.0, -9.81),
                  motions: Sequence[RigidMotion] = (), prefix: str = "elasticity_",
                  options: Mapping[str, Any] | None = None, quadrature_degree: int | None = None,
                  max_cutbacks: int = 6):
-        if model not in MODELS:
-            raise InputError(f"unknown model {model!r}; valid models are {', '.join(MODELS)}")
+        model = as_model(model)
         if degree not in (1, 2):
             raise InputError(f"degree must be 1 or 2, got {degree!r}")
         if material.isotropic and orientation is not None:
@@ -236,21 +229,21 @@ class ElasticityProblem:
         self.quadrature_degree = 2 * (degree - 1) if quadrature_degree is None else quadrature_degree
         self.V = fem.VectorFunctionSpace(mesh, ("CG", degree))
         self.u = fem.Function(self.V, name="displacement")
-        self.rotation = PolarRotation(self.u, self.quadrature_degree) if model == "corotational" else None
+        self.rotation = PolarRotation(self.u, self.quadrature_degree) if model.needs_rotation else None
 
         # Forms: one residual and its Jacobian; heterogeneity and loads are coefficient data.
         self._gravity = np.asarray(gravity, dtype=float).reshape(3)
         self._body_acceleration = fem.Constant(mesh, np.zeros(3))
         v, du = ufl.TestFunction(self.V), ufl.TrialFunction(self.V)
         #: first Piola–Kirchhoff stress of the model (UFL), e.g. for output
-        self.stress = P = first_piola_kirchhoff(model, self.u, material, orientation, self.rotation)
+        self.stress = P = model.first_piola_kirchhoff(self.u, material, orientation, self.rotation)
         dx_stress = ufl.dx(metadata={"quadrature_degree": self.quadrature_degree})
         residual = (ufl.inner(P, ufl.grad(v)) * dx_stress
                     - material.rho * ufl.inner(self._body_acceleration, v) * ufl.dx)
         self._residual = fem.form(residual)
         jacobian = ufl.derivative(residual, self.u, du)
-        if model == "corotational":  # exact tangent: add the change of R with u
-            dP = corotational_rotation_tangent(self.u, du, material, orientation, self.rotation)
+        dP = model.rotation_tangent(self.u, du, material, orientation, self.rotation)
+        if dP is not None:  # exact tangent: add the change of R with u
             jacobian += ufl.inner(dP, ufl.grad(v)) * dx_stress
         self._jacobian = fem.form(jacobian)
         self._det_F = fem.Expression(ufl.det(deformation_gradient(self.u)), self._inversion_points(mesh))
@@ -453,7 +446,7 @@ class ElasticityProblem:
         reason = snes.getConvergedReason()
         history = snes.getConvergenceHistory()[0].copy()
         name = _SNES_REASONS.get(reason, str(reason))
-        if reason > 0 and self.model != "linear":
+        if reason > 0 and self.model.finite_strain:
             det = self.min_det_F()
             if not det > 0.0:
                 return False, f"inverted element (min det F = {det:.3g})", snes.getIterationNumber(), history

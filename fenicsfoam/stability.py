@@ -40,7 +40,6 @@ from dolfinx import fem
 from dolfinx.mesh import compute_midpoints
 from mpi4py import MPI
 
-from fenicsfoam.constitutive import corotational_rotation_tangent
 from fenicsfoam.orientation import cell_function
 from foambase.errors import InputError
 
@@ -197,8 +196,9 @@ def _tangent_expression(problem: ElasticityProblem, points: np.ndarray) -> tuple
     """
     w = fem.Function(problem.V, name="direction")
     dP = ufl.derivative(problem.stress, problem.u, w)
-    if problem.model == "corotational":
-        dP += corotational_rotation_tangent(problem.u, w, problem.material, problem.orientation, problem.rotation)
+    extra = problem.model.rotation_tangent(problem.u, w, problem.material, problem.orientation, problem.rotation)
+    if extra is not None:
+        dP += extra
     return fem.Expression(dP, points), w
 
 
