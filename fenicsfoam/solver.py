@@ -492,7 +492,7 @@ class ElasticityProblem:
             if ds < ds_min * (1 - 1e-12):
                 self.loads = start.towards(target, s)
                 self._apply_loads(self.loads)
-                raise ConvergenceError(step.label, s, reason, stats.cutbacks, self._diagnose())
+                raise ConvergenceError(step.label, s, reason, stats.cutbacks, self.ellipticity_margin())
         self.loads = target
         self._apply_loads(target)
         if self.rotation is not None:
@@ -501,9 +501,14 @@ class ElasticityProblem:
         stats.wall_s = time.perf_counter() - t0
         return stats
 
-    def _diagnose(self) -> EllipticityCheck:
-        """Strong-ellipticity check of the current (last converged) state; evaluated only when a step fails."""
-        return ellipticity_margin(self)
+    def ellipticity_margin(self, directions: int = 256, refinements: int = 10) -> EllipticityCheck:
+        """Strong-ellipticity check of the current displacement (:func:`fenicsfoam.stability.ellipticity_margin`).
+
+        Evaluated by the solver only when a step fails (at the last converged state); collective.
+        """
+        return ellipticity_margin(self.u, self.model, self.material, self.orientation, rotation=self.rotation,
+                                  quadrature_degree=self.quadrature_degree, directions=directions,
+                                  refinements=refinements)
 
     def run(self, steps: Sequence[LoadStep]) -> list[StepStats]:
         """Solve the load steps in order; returns the statistics of each."""

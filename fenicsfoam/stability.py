@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import basix
 import numpy as np
@@ -40,11 +40,9 @@ from dolfinx import fem
 from dolfinx.mesh import compute_midpoints
 from mpi4py import MPI
 
+from fenicsfoam.constitutive import MaterialField, Model, PolarRotation, as_model
 from fenicsfoam.orientation import cell_function
 from foambase.errors import InputError
-
-if TYPE_CHECKING:
-    from fenicsfoam.solver import ElasticityProblem
 
 __all__ = ["EllipticityCheck", "acoustic_margin", "ellipticity_margin", "hemisphere_directions"]
 
@@ -149,7 +147,7 @@ def acoustic_margin(A: np.ndarray, directions: int = 256, refinements: int = 10
 
 @dataclass(frozen=True)
 class EllipticityCheck:
-    """Where a problem's current state has lost strong ellipticity (:func:`ellipticity_margin`).
+    """Where a displacement has lost strong ellipticity (:func:`ellipticity_margin`).
 
     ``margin`` is a DG0 field (the minimum over each cell's quadrature points); the other attributes are
     global (identical on every rank). ``location``, ``normal`` and ``polarization`` belong to the point with
@@ -187,39 +185,63 @@ class EllipticityCheck:
                 f"band normal n = {vector(self.normal)}, polarization m = {vector(self.polarization)})")
 
 
-def _tangent_expression(problem: ElasticityProblem, points: np.ndarray) -> tuple[fem.Expression, fem.Function]:
-    """``dP = A : ∇w`` at ``points``: the solver's exact tangent applied to a displacement ``w``.
+def _tangent_expression(u: fem.Function, model: Model, material: MaterialField, orientation: fem.Function | None,
+                        rotation: PolarRotation | None, points: np.ndarray) -> tuple[fem.Expression, fem.Function]:
+    """``dP = A : ∇w`` at ``points``: the model's exact tangent at ``u`` applied to a displacement ``w``.
 
-    The directional derivative of ``P`` along ``w`` (``ufl.derivative`` at frozen ``R``, plus the change of ``R``
-    for the corotational model). With ``w = G x`` (exact in P1 and P2), ``∇w = G``; evaluating it for the nine
-    unit matrices ``G = e_k⊗e_l`` gives ``A_ijkl`` with one compiled form.
+    The directional derivative of ``P`` along ``w`` (``ufl.derivative`` at frozen ``R``, plus the model's
+    :meth:`~fenicsfoam.constitutive.Model.rotation_tangent`). With ``w = G x`` (exact in P1 and P2), ``∇w = G``;
+    evaluating it for the nine unit matrices ``G = e_k⊗e_l`` gives ``A_ijkl`` with one compiled form.
     """
-    w = fem.Function(problem.V, name="direction")
-    dP = ufl.derivative(problem.stress, problem.u, w)
-    extra = problem.model.rotation_tangent(problem.u, w, problem.material, problem.orientation, problem.rotation)
+    w = fem.Function(u.function_space, name="direction")
+    dP = ufl.derivative(model.first_piola_kirchhoff(u, material, orientation, rotation), u, w)
+    extra = model.rotation_tangent(u, w, material, orientation, rotation)
     if extra is not None:
         dP += extra
     return fem.Expression(dP, points), w
 
 
-def ellipticity_margin(problem: ElasticityProblem, directions: int = 256, refinements: int = 10
+def ellipticity_margin(u: fem.Function, model: str | Model, material: MaterialField,
+                       orientation: fem.Function | None = None, *, rotation: PolarRotation | None = None,
+                       quadrature_degree: int | None = None, directions: int = 256, refinements: int = 10
                        ) -> EllipticityCheck:
-    """The strong-ellipticity margin of the problem's current displacement, per cell (collective).
+    """The strong-ellipticity margin of a model's tangent at the displacement ``u``, per cell (collective).
 
-    ``A = ∂P/∂F`` is evaluated at the quadrature points of the stress integral (one point per cell for P1)
-    of the owned cells, the margin computed there by :func:`acoustic_margin` and reduced per cell (minimum)
-    and over the mesh. The corotational rotation is first recomputed from ``problem.u`` (whose ghost values
-    must be up to date). Costs one form compilation (cached by FFCx afterwards) and nine evaluations.
+    ``A = ∂P/∂F`` is evaluated at the quadrature points of degree ``quadrature_degree`` (default
+    ``2 (degree - 1)`` of ``u``'s element, the stress integral's of :class:`~fenicsfoam.solver.ElasticityProblem`:
+    one point per cell for P1) of the owned cells, the margin computed there by :func:`acoustic_margin` and
+    reduced per cell (minimum) and over the mesh. The corotational rotation is recomputed from ``u`` (whose ghost
+    values must be up to date) in ``rotation`` if given (the solver passes its own), else in a new
+    :class:`~fenicsfoam.constitutive.PolarRotation`. Costs one form compilation (cached by FFCx afterwards) and
+    nine evaluations.
+
+    Parameters
+    ----------
+    u
+        The displacement (vector Lagrange function).
+    model
+        The constitutive model or its name (:data:`fenicsfoam.constitutive.MODELS`).
+    material, orientation
+        The DG0 material data and, for a transversely isotropic material, the l-axis field.
+    rotation, quadrature_degree
+        As the solver has them (see above).
+    directions, refinements
+        Of :func:`acoustic_margin`.
+
     """
-    mesh = problem.V.mesh
+    model = as_model(model)
+    if quadrature_degree is None:
+        quadrature_degree = 2 * (u.function_space.ufl_element().degree() - 1)
+    if model.needs_rotation and rotation is None:
+        rotation = PolarRotation(u, quadrature_degree)
+    mesh = u.function_space.mesh
     comm = mesh.comm
     tdim = mesh.topology.dim
     cells = np.arange(mesh.topology.index_map(tdim).size_local, dtype=np.int32)
-    points, _ = basix.make_quadrature(basix.cell.string_to_type(mesh.topology.cell_name()),
-                                      problem.quadrature_degree)
-    if problem.rotation is not None:
-        problem.rotation.update()
-    expression, w = _tangent_expression(problem, points)
+    points, _ = basix.make_quadrature(basix.cell.string_to_type(mesh.topology.cell_name()), quadrature_degree)
+    if rotation is not None:
+        rotation.update()
+    expression, w = _tangent_expression(u, model, material, orientation, rotation, points)
     A = np.empty((cells.size, points.shape[0], 3, 3, 3, 3))
     for k in range(3):
         for l in range(3):  # noqa: E741

@@ -59,7 +59,9 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import Voronoi, cKDTree
 from scipy.stats import qmc
 
-from foambase.errors import ComputationError, InputError
+from foambase.errors import ComputationError
+from meshes.errors import FoamParameterError
+from meshes.rve import RVEMesh, mesh_rve  # the RVE mesher of a foam (meshes.rve), under its public path
 
 __all__ = [
     "DENSITY_SAMPLE_LOG2",
@@ -69,7 +71,9 @@ __all__ = [
     "STRUT_SHAPES",
     "FoamParameterError",
     "FoamSummary",
+    "RVEMesh",
     "VoronoiFoam",
+    "mesh_rve",
     "strut_distance",
 ]
 
@@ -90,10 +94,6 @@ VERTEX_MERGE_TOL = 1e-6
 #: Points sampled along each strut for the distance search, per strut radius (spacing = radius / this).
 _SAMPLES_PER_RADIUS = 2.0
 _CHUNK = 1 << 16
-
-
-class FoamParameterError(InputError):
-    """A foam parameter (n_cells, density, gamma, seed, strut shape, resolution) is outside its valid range."""
 
 
 @dataclass(frozen=True)
@@ -546,15 +546,6 @@ class VoronoiFoam:
             tmp.unlink(missing_ok=True)
         log.info("to_stl: %d triangles written to %s", len(faces), path)
         return path
-
-
-def __getattr__(name: str):
-    """Lazy re-export of the RVE mesher (``from meshes.foam import mesh_rve``) without importing dolfinx here."""
-    if name in ("mesh_rve", "RVEMesh"):
-        from meshes import rve
-
-        return getattr(rve, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def _check_int(name: str, value, minimum: int) -> None:

@@ -43,15 +43,17 @@ import logging
 import math
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol
 
-import dolfinx
 import numpy as np
-from mpi4py import MPI
 
 from foambase.errors import ComputationError
 from foambase.mpi import on_rank0
-from meshes.distribute import mesh_from_arrays
-from meshes.foam import FoamParameterError, VoronoiFoam
+from meshes.errors import FoamParameterError
+
+if TYPE_CHECKING:
+    import dolfinx
+    from mpi4py import MPI
 
 __all__ = ["FACE_TAGS", "MIN_VOLUME_FRACTION", "SNAP", "SOLID", "VOID", "ZERO_BAND", "RVEMesh", "mesh_rve"]
 
@@ -71,6 +73,25 @@ MIN_VOLUME_FRACTION = 0.1
 ZERO_BAND = 0.05
 _KINDS = ("two-phase", "solid")
 _ROOT_ITERATIONS = 60
+
+
+class StrutFoam(Protocol):
+    """What the mesher needs of a foam (:class:`meshes.foam.VoronoiFoam` is one).
+
+    Its parameters (for messages), strut radius, and the periodic distance to the strut axes with the closest points.
+    """
+
+    n_cells: int
+    density: float
+    gamma: float
+    seed: int
+    radius: float
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """Periodic distance of ``points`` (n, 3) to the strut axes."""
+
+    def closest_points(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The distances and the closest points on the strut axes (wrapped into the unit cube)."""
 
 
 @dataclass(frozen=True)
@@ -202,7 +223,7 @@ def _split(v: list[int], sign: list[int], cut: dict[tuple[int, int], int],
 # --------------------------------------------------------------------------------------------------
 # The mesher (serial, numpy)
 # --------------------------------------------------------------------------------------------------
-def _edge_roots(foam: VoronoiFoam, a: np.ndarray, b: np.ndarray, fa: np.ndarray, fb: np.ndarray) -> np.ndarray:
+def _edge_roots(foam: StrutFoam, a: np.ndarray, b: np.ndarray, fa: np.ndarray, fb: np.ndarray) -> np.ndarray:
     """Points ``a + t (b − a)`` where ``φ = 0``, given ``φ(a) = fa`` and ``φ(b) = fb`` of opposite signs.
 
     Safeguarded secant (Illinois) iterations on ``t ∈ [0, 1]`` until the bracket is below ``1e-12``.
@@ -222,7 +243,7 @@ def _edge_roots(foam: VoronoiFoam, a: np.ndarray, b: np.ndarray, fa: np.ndarray,
     return a + t[:, None] * (b - a)
 
 
-def _snap(foam: VoronoiFoam, x: np.ndarray, rank: np.ndarray, dist: np.ndarray, foot: np.ndarray,
+def _snap(foam: StrutFoam, x: np.ndarray, rank: np.ndarray, dist: np.ndarray, foot: np.ndarray,
           h: float) -> tuple[np.ndarray, np.ndarray]:
     """Snapped positions and the mask of nodes with ``|φ| < SNAP · h`` that moved onto the surface ``φ = 0``.
 
@@ -254,7 +275,7 @@ def _snap(foam: VoronoiFoam, x: np.ndarray, rank: np.ndarray, dist: np.ndarray, 
     return moved, snap
 
 
-def _cut_mesh(foam: VoronoiFoam, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _cut_mesh(foam: StrutFoam, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Nodes, tetrahedra and cell tags (SOLID / VOID) of the conforming two-phase mesh on an ``n³`` grid."""
     x, rank, tets = _kuhn_grid(n)
     h, r = 1.0 / n, foam.radius
@@ -323,7 +344,7 @@ def _boundary_facets(x: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.n
     return np.concatenate(facets), np.concatenate(values)
 
 
-def mesh_rve(foam: VoronoiFoam, h: float, comm: MPI.Comm = MPI.COMM_WORLD, order: int = 1,
+def mesh_rve(foam: StrutFoam, h: float, comm: MPI.Comm | None = None, order: int = 1,
              kind: str = "two-phase") -> RVEMesh:
     """Periodic conforming tetrahedral mesh of the foam's unit-cube RVE (see the module docstring).
 
@@ -336,7 +357,7 @@ def mesh_rve(foam: VoronoiFoam, h: float, comm: MPI.Comm = MPI.COMM_WORLD, order
         into six tetrahedra; cut tetrahedra are subdivided, so the element count is about ``6 n³`` plus the cut
         pieces. Must satisfy ``1/64 ≤ h ≤ 2 radius`` (a strut diameter spans at least one grid spacing).
     comm
-        Communicator of the mesh; the mesh is built on rank 0 and distributed.
+        Communicator of the mesh (default ``MPI.COMM_WORLD``); the mesh is built on rank 0 and distributed.
     order
         Geometry degree; only 1 (straight tetrahedra, piecewise-linear interface) is implemented.
     kind
@@ -362,6 +383,10 @@ def mesh_rve(foam: VoronoiFoam, h: float, comm: MPI.Comm = MPI.COMM_WORLD, order
         raise FoamParameterError(f"mesh_rve: only order=1 (straight tetrahedra) is implemented, got {order!r}")
     if kind not in _KINDS:
         raise FoamParameterError(f"mesh_rve: kind must be one of {_KINDS}, got {kind!r}")
+    from mpi4py import MPI  # imported here, with dolfinx: meshes.foam imports this module and stays light
+
+    from meshes.distribute import mesh_from_arrays
+    comm = MPI.COMM_WORLD if comm is None else comm
     start = time.perf_counter()
 
     def build():

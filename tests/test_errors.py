@@ -23,7 +23,7 @@ from foambase.errors import (
 PACKAGES = ("foambase", "meshes", "homogenization", "fenicsfoam")
 #: Every named error of the project, its builtin parent and its exit code.
 NAMED = {
-    "meshes.foam.FoamParameterError": (ValueError, EXIT_INPUT),
+    "meshes.foam.FoamParameterError": (ValueError, EXIT_INPUT),  # defined in meshes.errors
     "homogenization.tensors.InadmissibleMaterialError": (ValueError, EXIT_INPUT),
     "homogenization.fft.FFTConvergenceError": (RuntimeError, EXIT_NOT_CONVERGED),
     "fenicsfoam.solver.ConvergenceError": (RuntimeError, EXIT_NOT_CONVERGED),
