@@ -1,10 +1,32 @@
-"""The ``fenicsfoam`` command line."""
+"""The ``fenicsfoam`` command line: ``fenicsfoam COMMAND [-v] [options]``.
+
+Commands: ``info`` (versions of the numerical stack), ``run`` (a TOML scene), ``homogenize`` (FFT homogenization
+of a foam or a phase image; the ``homogenize`` program is the same command), ``table`` (the foam-table sweep).
+Exit status: 0 ok, 1 other failure, 2 bad input (detected before any work), 3 a solver did not converge.
+``-v`` logs INFO (and FFCx's compiler lines), ``-vv`` DEBUG, on rank 0.
+
+A command is a :class:`foambase.cli.Command` registered in :data:`COMMANDS` as ``"module:ATTRIBUTE"``: a new one
+is one line there (its module is imported when the parser is built, after the entry point has kept OpenBLAS
+single-threaded, so command modules import numpy only inside their functions or after that).
+"""
 
 from __future__ import annotations
 
 import argparse
 import sys
 from pathlib import Path
+
+from foambase import cli
+
+__all__ = ["COMMANDS", "INFO", "RUN", "main"]
+
+#: The sub-commands, in the order ``fenicsfoam --help`` lists them.
+COMMANDS: tuple[str, ...] = (
+    "fenicsfoam.cli:INFO",
+    "fenicsfoam.cli:RUN",
+    "homogenization.cli:HOMOGENIZE",
+    "homogenization.cli:TABLE",
+)
 
 
 def _info(_: argparse.Namespace) -> int:
@@ -30,51 +52,40 @@ def _info(_: argparse.Namespace) -> int:
     return 0
 
 
+def _run_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("scene", type=Path, help="the scene file (TOML)")
+    parser.add_argument("--out", type=Path, required=True, help="output directory (created if needed)")
+
+
 def _run(args: argparse.Namespace) -> int:
     """Run a scene file; PETSc options after ``--`` go to the options database (they override the scene's)."""
     from mpi4py import MPI
     from petsc4py import PETSc
 
-    from fenicsfoam.scene import SceneError, run_scene
-    from fenicsfoam.solver import ConvergenceError
+    from fenicsfoam.scene import run_scene
 
     comm = MPI.COMM_WORLD
-    if args.petsc:
-        PETSc.Options().insertString(" ".join(args.petsc))
-    try:
-        result = run_scene(args.scene, args.out, comm=comm)
-    except (SceneError, ConvergenceError) as exc:
-        if comm.rank == 0:
-            print(f"fenicsfoam run: {exc}", file=sys.stderr)
-        return 2 if isinstance(exc, SceneError) else 3
+    if args.passthrough:
+        PETSc.Options().insertString(" ".join(args.passthrough))
+    result = run_scene(args.scene, args.out, comm=comm)
     if comm.rank == 0:
         print(result.table())
         print(f"outputs in {args.out}")
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of ``fenicsfoam`` (sub-commands are registered here)."""
-    parser = argparse.ArgumentParser(prog="fenicsfoam", description=__doc__)
-    sub = parser.add_subparsers(dest="command", required=True)
-    sub.add_parser("info", help="versions of the numerical stack").set_defaults(func=_info)
-    run = sub.add_parser("run", help="run a TOML scene: summary.json, probes.csv, solution.xdmf, PNGs",
-                         description="Run a TOML scene (README, 'Scenes and fenicsfoam run'). PETSc options "
-                                     "after '--' apply to the scene's solver, prefix 'scene_' "
-                                     "(e.g. -- -scene_snes_rtol 1e-8).")
-    run.add_argument("scene", type=Path, help="the scene file (TOML)")
-    run.add_argument("--out", type=Path, required=True, help="output directory (created if needed)")
-    run.set_defaults(func=_run)
-    return parser
+INFO = cli.Command("info", "versions of the numerical stack", lambda parser: None, _info)
+RUN = cli.Command(
+    "run", "run a TOML scene: summary.json, probes.csv, solution.xdmf, PNGs", _run_arguments, _run,
+    description="Run a TOML scene (every key: the docs' scenes page). PETSc options after '--' apply to the "
+                "scene's solver, prefix 'scene_' (e.g. -- -scene_snes_rtol 1e-8). Works under mpirun.",
+    passthrough=True)
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``fenicsfoam`` console script."""
-    argv = sys.argv[1:] if argv is None else list(argv)
-    petsc = argv[argv.index("--") + 1:] if "--" in argv else []
-    args = build_parser().parse_args(argv[: len(argv) - len(petsc) - (1 if "--" in argv else 0)])
-    args.petsc = petsc
-    return args.func(args)
+    """Entry point of the ``fenicsfoam`` console script; returns the exit status."""
+    return cli.main("fenicsfoam", "Stochastic foams → homogenized tables → soft-robot scenes (FEniCSx).",
+                    COMMANDS, argv)
 
 
 if __name__ == "__main__":

@@ -35,7 +35,10 @@ from foambase.errors import EXIT_OK, FenicsfoamError, exit_code
 from foambase.logs import launcher_rank, setup_logging
 from foambase.threads import single_threaded_blas_by_default
 
-__all__ = ["Command", "build_parser", "dispatch", "main", "main_single", "resolve"]
+__all__ = ["EPILOG", "Command", "build_parser", "dispatch", "main", "main_single", "resolve"]
+
+#: The exit-code table, shown under every ``--help``.
+EPILOG = "exit status: 0 ok, 1 other failure, 2 bad input (before any work), 3 a solver did not converge"
 
 
 @dataclass(frozen=True)
@@ -90,11 +93,11 @@ def _command_parser(parser: argparse.ArgumentParser, command: Command) -> None:
 
 def build_parser(prog: str, description: str, commands: Sequence[Command]) -> argparse.ArgumentParser:
     """The parser of ``PROG [-v] COMMAND [options]``."""
-    parser = argparse.ArgumentParser(prog=prog, description=description)
+    parser = argparse.ArgumentParser(prog=prog, description=description, epilog=EPILOG)
     _verbosity(parser, dest="verbose_global")
     sub = parser.add_subparsers(dest="command_name", required=True, metavar="COMMAND")
     for command in commands:
-        _command_parser(sub.add_parser(command.name, help=command.help,
+        _command_parser(sub.add_parser(command.name, help=command.help, epilog=EPILOG,
                                        description=command.description or command.help,
                                        formatter_class=argparse.ArgumentDefaultsHelpFormatter), command)
     return parser
@@ -139,7 +142,7 @@ def main(prog: str, description: str, registry: Sequence[str], argv: Sequence[st
 def main_single(command: Command, prog: str, argv: Sequence[str] | None = None) -> int:
     """Run one command as the program ``prog`` (same arguments, same code path and exit statuses)."""
     single_threaded_blas_by_default()
-    parser = argparse.ArgumentParser(prog=prog, description=command.description or command.help,
+    parser = argparse.ArgumentParser(prog=prog, description=command.description or command.help, epilog=EPILOG,
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     _command_parser(parser, command)
     return dispatch(parser, sys.argv[1:] if argv is None else argv)

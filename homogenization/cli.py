@@ -1,11 +1,19 @@
-"""``homogenize``: FFT homogenization of a stochastic Voronoi foam or of a phase image, written as JSON.
+"""Homogenization commands: ``homogenize`` (one foam or phase image → JSON) and ``table`` (the foam-table sweep).
 
-The solid is isotropic (``--E-solid``, ``--nu-solid``; default 1 and 0.3, normalised like the paper's Fig. 4), the
-void has zero stiffness. The JSON holds C (Voigt), engineering constants, the TI fit with l axis = x (the foam's
-distinct axis) and its error, the isotropic fit, iterations and residuals per load case, timings, every input and
-the software versions. It is written to a temporary file beside ``--out`` and renamed, so it is never half-written.
-Bad arguments exit with status 2 and a message naming the argument; a solver failure (no convergence, or a
-homogenized stiffness that is not positive definite, e.g. a solid that does not percolate) exits with status 1.
+``fenicsfoam homogenize`` and the ``homogenize`` program are the same command (:data:`HOMOGENIZE`): FFT
+homogenization of a stochastic Voronoi foam or of a phase image, written as JSON. The solid is isotropic
+(``--E-solid``, ``--nu-solid``; default 1 and 0.3, normalised like the paper's Fig. 4), the void has zero stiffness.
+The JSON holds C (Voigt), engineering constants, the TI fit with l axis = x (the foam's distinct axis) and its error,
+the isotropic fit, iterations and residuals per load case, timings, every input and the software versions. It is
+written to a temporary file beside ``--out`` and renamed, so it is never half-written.
+
+``fenicsfoam table`` (:data:`TABLE`) homogenizes every (density, γ, seed) foam of a sweep as the shipped table was
+made (:func:`homogenization.tables.run_sweep`: each finished sample is cached, so an interrupted sweep resumes; under
+``mpirun`` the samples are dealt to the ranks) and writes ``foam_table_samples.csv``, ``foam_table.csv`` (mean and
+standard deviation over seeds) and ``foam_table_provenance.json`` into ``--out``.
+
+Exit status: 0 ok; 1 another failure (e.g. a homogenized stiffness that is not positive definite: a solid that
+does not percolate); 2 bad arguments, named in the message (before any work); 3 the FFT solver did not converge.
 
 Examples
 --------
@@ -13,33 +21,27 @@ Examples
 
 ``homogenize --image phases.npy --E-solid 1 --nu-solid 0.3 --out result.json``
 
+``mpirun -n 2 fenicsfoam table --densities 0.15 0.3 --gammas 1 0.1 --seeds 0 1 2 --out out/foam-table``
+
 """
 
 from __future__ import annotations
 
-import os
+import argparse
+import sys
+from pathlib import Path
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # OpenBLAS threads spin against FFTW's (DESIGN.md)
+from foambase.cli import Command, main_single
 
-import argparse  # noqa: E402
-import logging  # noqa: E402
-import sys  # noqa: E402
-from importlib import metadata  # noqa: E402
-from pathlib import Path  # noqa: E402
-
-import numpy as np  # noqa: E402
-
-from foambase.files import write_json_atomic  # noqa: E402
-from homogenization.fft import DISCRETIZATIONS, SCHEMES, FFTConvergenceError, homogenize_fft  # noqa: E402
-from homogenization.tensors import InadmissibleMaterialError, isotropic_voigt  # noqa: E402
-
-logger = logging.getLogger(__name__)
+__all__ = ["HOMOGENIZE", "TABLE", "build_parser", "main"]
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The command-line interface (see the module docstring)."""
-    p = argparse.ArgumentParser(prog="homogenize", description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+# --------------------------------------------------------------------------------------------------
+# homogenize
+# --------------------------------------------------------------------------------------------------
+def _homogenize_arguments(p: argparse.ArgumentParser) -> None:
+    from homogenization.fft import DISCRETIZATIONS, SCHEMES
+
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--density", type=float, help="foam: relative density (solid fraction) in (0, 1)")
     source.add_argument("--image", type=Path, help=".npy phase image (N1, N2, N3): 0 = void, 1 (or True) = solid")
@@ -58,13 +60,15 @@ def build_parser() -> argparse.ArgumentParser:
     sol.add_argument("--maxiter", type=int, default=None, help="iterations per load case (default: solver's)")
     sol.add_argument("--threads", type=int, default=None, help="FFTW/kernel threads (default: available CPUs)")
     p.add_argument("--out", type=Path, default=None, help="JSON result file (written atomically)")
-    return p
 
 
-def _check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+def _homogenize_check(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Usage errors before any work (exit status 2); reads the image (``args.phases``) when one is given."""
+    import numpy as np
+
     def need(ok: bool, message: str):
         if not ok:
-            parser.error(message)  # exit code 2
+            parser.error(message)
     if args.density is not None:
         need(0.0 < args.density < 1.0, f"--density must be in (0, 1), got {args.density}")
         need(0.0 < args.gamma <= 1.0, f"--gamma must be in (0, 1], got {args.gamma}")
@@ -79,29 +83,23 @@ def _check_args(parser: argparse.ArgumentParser, args: argparse.Namespace) -> No
     need(args.threads is None or args.threads >= 1, f"--threads must be >= 1, got {args.threads}")
     if args.out is not None:
         need(args.out.parent.is_dir(), f"--out {args.out}: directory {args.out.parent} does not exist")
-
-
-def _phases(parser: argparse.ArgumentParser, args: argparse.Namespace) -> np.ndarray:
-    if args.density is not None:
+    args.phases = None
+    if args.image is not None:
         try:
-            from meshes.foam import VoronoiFoam
-        except ImportError as exc:
-            parser.error(f"--density: the foam generator meshes.foam is not available ({exc}); use --image")
-        foam = VoronoiFoam(n_cells=args.cells, density=args.density, gamma=args.gamma, seed=args.seed)
-        return foam.voxelize(args.resolution).astype(np.int8)
-    try:
-        image = np.load(args.image, allow_pickle=False)
-    except (OSError, ValueError) as exc:
-        parser.error(f"--image {args.image}: cannot read a .npy array ({exc})")
-    if image.ndim != 3:
-        parser.error(f"--image {args.image}: expected a 3-D array, got shape {image.shape}")
-    if image.dtype != bool and not (np.issubdtype(image.dtype, np.integer) and np.isin(image, (0, 1)).all()):
-        parser.error(f"--image {args.image}: expected bool or 0/1 integer phases (0 = void, 1 = solid), "
-                     f"got dtype {image.dtype} with values {np.unique(image)[:5].tolist()}")
-    return image.astype(np.int8)
+            image = np.load(args.image, allow_pickle=False)
+        except (OSError, ValueError) as exc:
+            parser.error(f"--image {args.image}: cannot read a .npy array ({exc})")
+        need(image.ndim == 3, f"--image {args.image}: expected a 3-D array, got shape {image.shape}")
+        need(image.dtype == bool or (np.issubdtype(image.dtype, np.integer) and np.isin(image, (0, 1)).all()),
+             f"--image {args.image}: expected bool or 0/1 integer phases (0 = void, 1 = solid), "
+             f"got dtype {image.dtype} with values {np.unique(image)[:5].tolist()}")
+        args.phases = image.astype(np.int8)
 
 
 def _versions() -> dict[str, str]:
+    from importlib import metadata
+
+    import numpy as np
     import pyfftw
     try:
         own = metadata.version("fenicsfoam")
@@ -111,36 +109,38 @@ def _versions() -> dict[str, str]:
             "python": sys.version.split()[0]}
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Run the command line; returns the exit status (0 ok, 1 solver failure; 2 bad arguments via argparse)."""
+def _homogenize(args: argparse.Namespace) -> int:
+    """Homogenize the foam or image; print C and the TI fit; write the JSON."""
+    import numpy as np
     from tqdm import tqdm
 
-    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    _check_args(parser, args)
-    phases = _phases(parser, args)
+    from foambase.errors import ComputationError
+    from foambase.files import write_json_atomic
+    from homogenization.fft import homogenize_fft
+    from homogenization.tensors import InadmissibleMaterialError, isotropic_voigt
+
+    phases = args.phases
+    if phases is None:
+        from meshes.foam import VoronoiFoam
+        foam = VoronoiFoam(n_cells=args.cells, density=args.density, gamma=args.gamma, seed=args.seed)
+        phases = foam.voxelize(args.resolution).astype(np.int8)
     materials = [np.zeros((6, 6)), isotropic_voigt(args.E_solid, args.nu_solid)]
     with tqdm(total=6, unit="case", desc="homogenize", disable=None) as bar:
         def progress(case, iteration, residual):
             if case > bar.n:
                 bar.update(case - bar.n)
             bar.set_postfix(iteration=iteration, residual=f"{residual:.2e}", refresh=False)
-        try:
-            result = homogenize_fft(phases, materials, scheme=args.scheme, discretization=args.discretization,
-                                    tol=args.tol, maxiter=args.maxiter, threads=args.threads, callback=progress)
-        except FFTConvergenceError as exc:
-            print(f"homogenize: error: {exc}", file=sys.stderr)
-            return 1
+        result = homogenize_fft(phases, materials, scheme=args.scheme, discretization=args.discretization,
+                                tol=args.tol, maxiter=args.maxiter, threads=args.threads, callback=progress)
         bar.update(6 - bar.n)
     try:
         summary = result.to_dict()
     except InadmissibleMaterialError as exc:  # e.g. a solid that does not percolate: C is singular
-        print(f"homogenize: error: the homogenized stiffness is not positive definite ({exc}); "
-              f"C = {np.array2string(result.C, precision=4)}", file=sys.stderr)
-        return 1
+        raise ComputationError(f"the homogenized stiffness is not positive definite ({exc}); "
+                               f"C = {np.array2string(result.C, precision=4)}") from exc
     unused = ("image",) if args.image is None else ("density", "gamma", "cells", "seed", "resolution")
-    inputs = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items() if k not in unused}
+    inputs = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()
+              if k in _HOMOGENIZE_INPUTS and k not in unused}
     summary.update(inputs=inputs, solid_fraction=float(phases.mean()), software=_versions())
     ti = summary["ti_fit"]
     print(f"C (Voigt) =\n{np.array2string(result.C, precision=5, suppress_small=True)}")
@@ -151,6 +151,108 @@ def main(argv: list[str] | None = None) -> int:
         write_json_atomic(args.out, summary, indent=1)
         print(f"written {args.out}")
     return 0
+
+
+#: The inputs recorded in the JSON: the arguments of the command (not the dispatcher's).
+_HOMOGENIZE_INPUTS = ("density", "image", "gamma", "cells", "seed", "resolution", "E_solid", "nu_solid", "scheme",
+                      "discretization", "tol", "maxiter", "threads", "out")
+
+HOMOGENIZE = Command("homogenize", "FFT homogenization of a foam (--density) or a phase image (--image) to JSON",
+                     _homogenize_arguments, _homogenize, description=__doc__.split("\n\n")[1],
+                     check=_homogenize_check)
+
+
+# --------------------------------------------------------------------------------------------------
+# table
+# --------------------------------------------------------------------------------------------------
+def _table_arguments(p: argparse.ArgumentParser) -> None:
+    from homogenization import tables
+
+    p.add_argument("--out", type=Path, required=True, help="directory of the three table files")
+    p.add_argument("--cache", type=Path, default=None, help="one JSON per finished sample (default: OUT/cache)")
+    p.add_argument("--densities", type=float, nargs="+", default=tables.DENSITIES, help="relative densities")
+    p.add_argument("--gammas", type=float, nargs="+", default=tables.GAMMAS, help="degrees of anisotropy γ")
+    p.add_argument("--seeds", type=int, nargs="+", default=tables.SEEDS, help="random seeds per (density, γ)")
+    p.add_argument("--cells", type=int, default=tables.SweepSettings.n_cells, help="Voronoi cells per RVE")
+    p.add_argument("--resolution", type=int, default=tables.SweepSettings.resolution, help="voxels per side N")
+    p.add_argument("--tol", type=float, default=tables.SweepSettings.tol, help="FFT (CG) tolerance")
+    p.add_argument("--threads", type=int, default=None, help="FFTW threads per rank (default: CPUs / ranks)")
+
+
+def _table_check(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """Usage errors before any work (exit status 2); builds ``args.settings``."""
+    from homogenization import tables
+
+    bad = [d for d in args.densities if not 0.0 < d < 1.0]
+    if bad:
+        parser.error(f"--densities must lie in (0, 1), got {bad}")
+    bad = [g for g in args.gammas if not 0.0 < g <= 1.0]
+    if bad:
+        parser.error(f"--gammas must lie in (0, 1], got {bad}")
+    if any(s < 0 for s in args.seeds):
+        parser.error(f"--seeds must be >= 0, got {args.seeds}")
+    if args.threads is not None and args.threads < 1:
+        parser.error(f"--threads must be >= 1, got {args.threads}")
+    try:
+        args.settings = tables.SweepSettings(n_cells=args.cells, resolution=args.resolution, tol=args.tol)
+    except ValueError as exc:
+        parser.error(str(exc))
+
+
+def _table(args: argparse.Namespace) -> int:
+    """Run the sweep (MPI-aware), then write and print the aggregated table on rank 0."""
+    import time
+    from datetime import UTC, datetime
+
+    from mpi4py import MPI
+
+    from homogenization import tables
+
+    comm = MPI.COMM_WORLD
+    settings = args.settings
+    start = time.perf_counter()
+    rows = tables.run_sweep(tables.grid(args.densities, args.gammas, args.seeds), settings,
+                            args.cache or args.out / "cache", comm, threads=args.threads)
+    wall = time.perf_counter() - start
+    if comm.rank != 0:
+        return 0
+    launcher = f"mpirun -n {comm.size} " if comm.size > 1 else ""
+    provenance = {"command": launcher + " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
+                  "software": _versions(), "date": datetime.now(UTC).isoformat(timespec="seconds"),
+                  "ranks": comm.size, "wall_s_this_run": wall,
+                  "sample_wall_s_total": float(sum(r["wall_s"] for r in rows)), "n_samples": len(rows),
+                  "settings": tables.settings_dict(settings)}
+    paths = tables.write_tables(rows, args.out, provenance)
+    table = tables.aggregate(rows)
+    print(f"{len(rows)} samples, {len(table)} (density, gamma) points; N = {settings.resolution}, "
+          f"n_cells = {settings.n_cells}, tol = {settings.tol:g}; this run {wall:.0f} s on {comm.size} rank(s)")
+    print(f"{'density':>8} {'gamma':>6} {'E1/Es':>10} {'E2/Es':>10} {'E3/Es':>10} {'G23/Es':>10} {'TI err':>7} "
+          f"{'iso err':>7}")
+    for t in table:
+        print(f"{t['density']:8.2f} {t['gamma']:6.2f} {t['E1']:10.3e} {t['E2']:10.3e} {t['E3']:10.3e} "
+              f"{t['G23']:10.3e} {t['ti_error']:7.3f} {t['iso_error']:7.3f}")
+    print("written:", ", ".join(str(p) for p in paths.values()))
+    return 0
+
+
+TABLE = Command("table", "the foam-table sweep: density × γ × seed → foam_table*.csv (resumable, MPI-aware)",
+                _table_arguments, _table, description=__doc__.split("\n\n")[2], check=_table_check)
+
+
+# --------------------------------------------------------------------------------------------------
+# The ``homogenize`` program
+# --------------------------------------------------------------------------------------------------
+def build_parser() -> argparse.ArgumentParser:
+    """The parser of the ``homogenize`` program (the arguments of :data:`HOMOGENIZE`)."""
+    parser = argparse.ArgumentParser(prog="homogenize", description=HOMOGENIZE.description,
+                                     formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    _homogenize_arguments(parser)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``homogenize`` console script (= ``fenicsfoam homogenize``); returns the exit status."""
+    return main_single(HOMOGENIZE, "homogenize", argv)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from foambase.errors import ComputationError, InputError
+from foambase.errors import ComputationError, InputError, exit_code
 from foambase.files import write_json_atomic, write_text_atomic
 from foambase.threads import threads_per_rank
 from homogenization.fft import homogenize_fft
@@ -167,7 +167,7 @@ def run_sweep(samples: Sequence[Sample], settings: SweepSettings, cache_dir: str
     threads
         FFTW threads per rank (default: the process's CPUs divided by the number of ranks).
     progress
-        tqdm bar on rank 0 (over rank 0's share of the samples).
+        tqdm bar on rank 0 (over rank 0's share of the samples), when stderr is a terminal.
     stop_after
         Stop each rank after computing this many new samples (to test and demonstrate resuming); the rows
         are then not all present and ``None`` is returned.
@@ -184,16 +184,21 @@ def run_sweep(samples: Sequence[Sample], settings: SweepSettings, cache_dir: str
     if stop_after is not None:
         mine = mine[:stop_after]
     failure = None
-    for sample in tqdm(mine, desc=f"foam samples (rank 0 of {comm.size})", disable=not progress or comm.rank != 0):
+    bar = tqdm(mine, desc=f"foam samples (rank 0 of {comm.size})", unit="sample",
+               disable=None if progress and comm.rank == 0 else True)  # None: shown only on a terminal
+    for sample in bar:
         try:
             row = homogenize_sample(sample, settings, threads)
         except Exception as exc:  # reported below on every rank, never swallowed
-            failure = f"{sample}: {type(exc).__name__}: {exc}"
+            failure = (f"{sample}: {type(exc).__name__}: {exc}", exit_code(exc))
             break
         write_json_atomic(cache / cache_name(sample, settings), row, indent=1)
     failures = [f for f in comm.allgather(failure) if f]
     if failures:
-        raise ComputationError("foam sweep failed (finished samples stay cached): " + "; ".join(failures))
+        error = ComputationError("foam sweep failed (finished samples stay cached): "
+                                 + "; ".join(message for message, _ in failures))
+        error.exit_code = failures[0][1]  # e.g. 2 for a density the foam cannot reach, 3 for no convergence
+        raise error
     comm.barrier()
     if stop_after is not None:
         return None
