@@ -1,6 +1,6 @@
 """Elastic materials of the macro model: isotropic and transversely isotropic (TI) constants.
 
-Conventions (DESIGN.md): SI units; Voigt order (11, 22, 33, 23, 13, 12) with engineering shear strains;
+Conventions (docs/conventions.md): SI units; Voigt order (11, 22, 33, 23, 13, 12) with engineering shear strains;
 for TI the local axis 3 is the symmetry (longitudinal, *l*) axis, ``E_t = E1 = E2``, ``E_l = E3``,
 ``nu_t = ν12``, ``nu_tl = ν13 = ν23``, ``G_l = G13 = G23`` and ``G12 = E_t / (2 (1 + nu_t))``.
 

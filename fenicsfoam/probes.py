@@ -1,4 +1,6 @@
-"""Probes: scalar measurements of a displacement field, as the paper reports them (DESIGN.md "Public contract").
+"""Probes: scalar measurements of a displacement field, as the paper reports them (SI, angles in degrees).
+
+Units as everywhere in the project (docs/conventions.md).
 
 Each probe is a small object built once for a function space and a set of tags (forms compiled, node sets
 located), then called on any displacement :class:`dolfinx.fem.Function` of that space, every load step:

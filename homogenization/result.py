@@ -58,7 +58,7 @@ class HomogenizationResult:
         return engineering_constants(self.C)
 
     def ti_fit(self, axis=0) -> TransverseIsotropicFit:
-        """Closest TI stiffness; the default l axis is x, the foam's distinct axis (DESIGN.md)."""
+        """Closest TI stiffness; the default l axis is x, the foam's distinct axis (docs/conventions.md)."""
         return closest_transverse_isotropic(self.C, axis=axis)
 
     def isotropic_fit(self) -> IsotropicFit:

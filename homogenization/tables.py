@@ -126,7 +126,7 @@ def _version() -> str:
 def homogenize_sample(sample: Sample, settings: SweepSettings, threads: int | None = None) -> dict:
     """Build, voxelize and homogenize one foam; return its table row (moduli normalised by E_s = 1).
 
-    The TI fit takes the foam's distinct axis x as its *l* axis (DESIGN.md): ``ti_E_l`` is the modulus along x.
+    The TI fit takes the foam's distinct axis x as its *l* axis (docs/conventions.md): ``ti_E_l`` is along x.
     Raises ``meshes.foam.FoamParameterError`` for a density the foam cannot reach and
     ``homogenization.fft.FFTConvergenceError`` when CG does not converge.
     """

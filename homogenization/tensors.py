@@ -1,7 +1,7 @@
 """Elasticity tensor utilities: Voigt, Mandel and fourth-order forms, TI and isotropic stiffnesses.
 
-Conventions (DESIGN.md)
------------------------
+Conventions (docs/conventions.md)
+---------------------------------
 * Voigt order ``(11, 22, 33, 23, 13, 12)`` with engineering shear strains ``γ_ij = 2 ε_ij``.
   Every 6×6 that crosses a module boundary is a Voigt *stiffness* in this order.
 * Mandel: the same order, with ``√2`` on shear components, so that the 6×6 matrix is the
@@ -145,7 +145,7 @@ def check_isotropic(E: float, nu: float) -> None:
 def check_transverse_isotropic(E_t: float, E_l: float, nu_t: float, nu_tl: float, G_l: float) -> None:
     """Raise :class:`InadmissibleMaterialError` unless the TI compliance is positive definite.
 
-    The conditions (positive definiteness of the compliance in DESIGN.md) are
+    The conditions (positive definiteness of the compliance in docs/conventions.md) are
     ``E_t > 0``, ``E_l > 0``, ``G_l > 0``, ``-1 < nu_t < 1`` and
     ``1 - nu_t - 2 nu_tl² E_l / E_t > 0``.
     """
@@ -201,7 +201,7 @@ def isotropic_voigt(E: float, nu: float) -> np.ndarray:
 
 
 def transverse_isotropic_compliance(E_t: float, E_l: float, nu_t: float, nu_tl: float, G_l: float) -> np.ndarray:
-    """TI Voigt compliance in the local frame (l = axis 3), the closed form of DESIGN.md.
+    """TI Voigt compliance in the local frame (l = axis 3), the closed form of docs/conventions.md.
 
     ``S11 = S22 = 1/E_t``, ``S33 = 1/E_l``, ``S12 = -nu_t/E_t``, ``S13 = S23 = -nu_tl/E_t``,
     ``S44 = S55 = 1/G_l``, ``S66 = 2(1 + nu_t)/E_t``.

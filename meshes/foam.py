@@ -1,6 +1,6 @@
 """Periodic stochastic Voronoi strut foams in the unit cube: geometry, radius from density, voxels, surface.
 
-Model (DESIGN.md, paper §II-A)
+Model (docs/conventions.md, paper §II-A)
 ------------------------------
 * **Seeds**: ``n_cells`` points drawn uniformly in ``[0, 1)³`` by ``numpy.random.default_rng(seed)``.
 * **Anisotropy**: the Voronoi diagram under the metric ``|p - q|_γ² = (Δx/γ)² + Δy² + Δz²``, i.e. the

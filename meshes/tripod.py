@@ -1,6 +1,6 @@
 """The Tripod robot's soft plate: a parametric Y-shaped plate with a central hole, tagged for scenes and probes.
 
-Geometry (SoftRobots Tripod tutorial, DESIGN.md "Scenes"; SI units, metres). The plate lies in the x–y plane,
+Geometry (SoftRobots Tripod tutorial; SI units, metres: docs/conventions.md). The plate lies in the x–y plane,
 ``−thickness/2 ≤ z ≤ thickness/2``, centred at the origin. It is the union of three arms, rectangles of width
 ``arm_width`` along the unit directions ``e_i = (cos φ_i, sin φ_i, 0)``, ``φ_i = 0°, 120°, 240°`` from +x
 (:data:`ARM_ANGLES_DEG`), each reaching from the origin to its flat end at distance ``arm_length`` along ``e_i``,
@@ -141,7 +141,7 @@ class ServoFrame:
 
 @dataclass(frozen=True)
 class TripodGeometry:
-    """Parameters of the Tripod plate and of its servos (m); defaults from DESIGN.md (SoftRobots tutorial, mm → m).
+    """Parameters of the Tripod plate and of its servos (m); defaults from the SoftRobots Tripod tutorial (mm → m).
 
     Attributes
     ----------
@@ -445,7 +445,7 @@ def make_tripod(
         Target tetrahedron size (m), positive and at most ``2 · thickness``. :data:`PAPER_H` (5.2 mm) gives
         2694 tetrahedra, about the paper's 2684.
     geometry : TripodGeometry, optional
-        Plate and servo parameters; defaults to ``TripodGeometry()`` (DESIGN.md numbers).
+        Plate and servo parameters; defaults to ``TripodGeometry()`` (the tutorial's numbers).
     order : int
         Geometry degree, 1 or 2 (2 curves the arcs: hole, region boundaries, fillets).
 
