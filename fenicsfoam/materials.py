@@ -243,7 +243,7 @@ def foam_material(density: float, gamma: float, E_solid: float, nu_solid: float,
     if not np.isclose(nu_solid, NU_SOLID, rtol=0, atol=1e-12):
         raise InputError(f"nu_solid = {nu_solid!r}: the foam table was computed for a solid with nu = {NU_SOLID} "
                          "(moduli scale with E_solid, Poisson's ratio cannot be rescaled); recompute the table "
-                         "(demos/homogenization_table.py) for another solid")
+                         "(homogenization.tables, NU_SOLID) for another solid")
     data = _foam_table(str(Path(table) if table is not None else TABLE_CSV))
     for name, value, nodes in (("density", density, data["density"]), ("gamma", gamma, data["gamma"])):
         lo, hi = float(nodes.min()), float(nodes.max())
