@@ -226,11 +226,7 @@ def _table(args: argparse.Namespace) -> int:
     table = tables.aggregate(rows)
     print(f"{len(rows)} samples, {len(table)} (density, gamma) points; N = {settings.resolution}, "
           f"n_cells = {settings.n_cells}, tol = {settings.tol:g}; this run {wall:.0f} s on {comm.size} rank(s)")
-    print(f"{'density':>8} {'gamma':>6} {'E1/Es':>10} {'E2/Es':>10} {'E3/Es':>10} {'G23/Es':>10} {'TI err':>7} "
-          f"{'iso err':>7}")
-    for t in table:
-        print(f"{t['density']:8.2f} {t['gamma']:6.2f} {t['E1']:10.3e} {t['E2']:10.3e} {t['E3']:10.3e} "
-              f"{t['G23']:10.3e} {t['ti_error']:7.3f} {t['iso_error']:7.3f}")
+    print(tables.format_table(table))
     print("written:", ", ".join(str(p) for p in paths.values()))
     return 0
 

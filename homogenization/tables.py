@@ -221,6 +221,16 @@ def aggregate(rows: Sequence[dict]) -> list[dict]:
     return table
 
 
+def format_table(table: Sequence[dict]) -> str:
+    """The aggregated table (:func:`aggregate`) as text: moduli along x, y, z and G23 over E_s, fit errors."""
+    lines = [f"{'density':>8} {'gamma':>6} {'E1/Es':>10} {'E2/Es':>10} {'E3/Es':>10} {'G23/Es':>10} {'TI err':>7} "
+             f"{'iso err':>7}"]
+    for t in table:
+        lines.append(f"{t['density']:8.2f} {t['gamma']:6.2f} {t['E1']:10.3e} {t['E2']:10.3e} {t['E3']:10.3e} "
+                     f"{t['G23']:10.3e} {t['ti_error']:7.3f} {t['iso_error']:7.3f}")
+    return "\n".join(lines)
+
+
 def to_csv(rows: Sequence[dict], path: str | os.PathLike) -> Path:
     """Write rows (dicts with the same keys) as CSV, atomically."""
     path = Path(path)

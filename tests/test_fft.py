@@ -25,7 +25,7 @@ C_SOFT = isotropic_voigt(1.0, 0.3)
 def one_thread(monkeypatch):
     """Default to one thread: on a shared 2-core machine FFTW threads waiting for a descheduled sibling make
     runs up to 30× slower. ``test_threads_give_the_same_result`` exercises the threaded path explicitly."""
-    monkeypatch.setattr("homogenization.fft._default_threads", lambda: 1)
+    monkeypatch.setattr("homogenization.fft.cpu_count", lambda: 1)
 
 TI = rotate_voigt(transverse_isotropic_voigt(E_t=3.0, E_l=0.4, nu_t=0.35, nu_tl=0.15, G_l=0.25),
                   rotation_from_axis([1.0, 2.0, 2.0]))
