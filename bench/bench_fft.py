@@ -13,7 +13,7 @@ Each case runs in a fresh process so that its peak RSS (``getrusage``) is its ow
 
 import os
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # OpenBLAS threads spin against FFTW's (DESIGN.md)
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # OpenBLAS threads spin against FFTW's (docs/installation.md)
 
 import argparse
 import csv

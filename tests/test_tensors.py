@@ -30,7 +30,7 @@ def random_spd(rng):
 
 
 def test_compliance_closed_form():
-    """The inverse of the TI stiffness is the compliance written in DESIGN.md."""
+    """The inverse of the TI stiffness is the compliance written in docs/conventions.md."""
     p = TI
     S = np.linalg.inv(transverse_isotropic_voigt(**p))
     G12 = p["E_t"] / (2 * (1 + p["nu_t"]))
