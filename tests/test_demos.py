@@ -1,8 +1,9 @@
-"""Every demo runs at its fast ``--ci`` size, serially and under ``mpirun -n 2``, and passes its own checks.
+"""Every demo and study runs at its fast ``--ci`` size, serially and under ``mpirun -n 2``, and passes its checks.
 
-Demos are discovered, not listed (as dolfinx's ``python/demo/test.py`` does), so a new demo is tested the day it
-lands. Each demo takes ``--ci`` (a small, fast size) and ``--out DIR``, checks its own result and exits non-zero
-when a check fails; this test only asserts the exit status, and shows the demo's output when it fails.
+Scripts in ``demos/`` and ``studies/`` are discovered, not listed (as dolfinx's ``python/demo/test.py`` does), so
+a new one is tested the day it lands; modules whose name starts with ``_`` are shared helpers, not scripts. Each
+script takes ``--ci`` (a small, fast size) and ``--out DIR``, checks its own result and exits non-zero when a
+check fails; this test only asserts the exit status, and shows the script's output when it fails.
 
 The ``mpirun`` cases spawn their own ``mpirun``; they are not marked ``mpi`` (which would nest them inside the
 ``mpirun -n 2 pytest -m mpi`` run of ``make test``).
@@ -15,7 +16,8 @@ from pathlib import Path
 
 import pytest
 
-DEMOS = sorted((Path(__file__).resolve().parents[1] / "demos").glob("*.py"))
+ROOT = Path(__file__).resolve().parents[1]
+DEMOS = sorted(p for folder in ("demos", "studies") for p in (ROOT / folder).glob("*.py") if not p.name.startswith("_"))
 TIMEOUT_S = 900
 
 
@@ -29,16 +31,17 @@ def _run(command: list[str], cwd: Path) -> None:
     )
 
 
-def test_demos_are_found():
-    assert any(demo.name == "pipeline.py" for demo in DEMOS)
+def test_demos_and_studies_are_found():
+    names = {(demo.parent.name, demo.name) for demo in DEMOS}
+    assert {("demos", "pipeline.py"), ("studies", "speed_accuracy.py")} <= names
 
 
-@pytest.mark.parametrize("demo", DEMOS, ids=lambda p: p.stem)
+@pytest.mark.parametrize("demo", DEMOS, ids=lambda p: f"{p.parent.name}/{p.stem}")
 def test_demo_serial(demo, tmp_path):
     _run([sys.executable, str(demo), "--ci", "--out", str(tmp_path / "out")], cwd=tmp_path)
 
 
-@pytest.mark.parametrize("demo", DEMOS, ids=lambda p: p.stem)
+@pytest.mark.parametrize("demo", DEMOS, ids=lambda p: f"{p.parent.name}/{p.stem}")
 def test_demo_mpirun(demo, tmp_path):
     _run(["mpirun", "-n", "2", sys.executable, "-m", "mpi4py", str(demo), "--ci", "--out", str(tmp_path / "out")],
          cwd=tmp_path)

@@ -8,7 +8,7 @@ refinement, the FFT rotated scheme (one-point integrated hexahedra) is softer an
 G's and the relative Frobenius difference of C to the finest FEM result (Q2; ``--ci``: Q1, k = 2), plots the
 convergence (``validation.png``) and writes ``validation.csv``.
 
-Second part, the smooth foam (the issue's study): one foam of 20 cells, density 0.18, seed 1, γ = 1 and 0.1. The
+Second part, the smooth foam: one foam of 20 cells, density 0.18, seed 1, γ = 1 and 0.1. The
 conforming two-phase tetrahedral mesh of the strut surface (``meshes.foam.mesh_rve``) at h = 1/24 and 1/32 with
 P1, and P2 at h = 1/24 for γ = 1 (the reduction and its measured cost: :data:`SMOOTH_STUDY`), solved with CG + GAMG;
 against the FFT solver on voxelizations N = 32, 64, 128 of the same foam (``--ci``: 4 cells, 25 %, γ = 1, P1 at
@@ -110,7 +110,7 @@ def main(out: Path, ci: bool) -> int:
 
 
 # Smooth foam: conforming mesh (mesh_rve) vs FFT on voxelizations of the same foam
-#: The issue's study (full size) and the ``--ci`` size. ``fem`` maps γ to the FEM levels (n, degrees): mesh_rve
+#: The full study and the ``--ci`` size. ``fem`` maps γ to the FEM levels (n, degrees): mesh_rve
 #: at h = 1/n with those Lagrange degrees. Full size: P2 only at h = 1/24 and only for γ = 1 — P2 on the two-phase
 #: h = 1/24 mesh has ~540k dofs (80 % of them void identity rows) and CG + GAMG needs ~250 iterations per load
 #: case at ~2 per second here, ~13 min per foam; MUMPS already took 4.2 GB for P1 at h = 1/32 (152k dofs).
@@ -126,7 +126,7 @@ SMOOTH_FFT_TOL = 1e-3
 #: of the order of rtol² (homogenization.fem.iterative_options), far below the discretization differences here.
 SMOOTH_FEM_OPTIONS = iterative_options(rtol=1e-6)
 #: Full size: relative Frobenius difference allowed between FFT at the largest N and the FEM reference (P2), a
-#: regression guard set above the measured gap (0.081 for γ = 1, see README), not a claim of accuracy.
+#: regression guard set above the measured gap (0.081 for γ = 1, docs/validation), not a claim of accuracy.
 SMOOTH_AGREEMENT = 0.12
 SMOOTH_NAMES = ("E1", "E2", "E3", "G23", "G13", "G12", "nu12", "nu13", "nu23")
 

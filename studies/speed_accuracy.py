@@ -18,11 +18,11 @@
 #   size × degree × model, against the finest P2 of the same model, with the small-strain validity measure of
 #   fenicsfoam.validity.
 #
-# Run: `python demos/speed_accuracy.py --out out/speed_accuracy [--size ci|default|full]`, also under
+# Run: `python studies/speed_accuracy.py --out out/speed_accuracy [--size ci|default|full]`, also under
 # `mpirun -n N` (a batch: the beam and the Tripod run on all ranks; the homogenization runs — FFT, RVE size, FEM
 # RVE — are independent serial jobs spread over the ranks by estimated cost, each on one thread and
-# MPI.COMM_SELF, gathered on rank 0). `full` is the issue's grid (~1.5 h on 2 ranks here), `default` a reduced
-# one (~10 min serial).
+# MPI.COMM_SELF, gathered on rank 0). `full` is the complete grid (~1.5 h on 2 ranks of the 2-core machine),
+# `default` a reduced one (~10 min serial).
 # Outputs (rank 0): `homogenization.csv`, `fem_crosscheck.csv`, `rve_size.csv`, `beam.csv`, `tripod.csv`,
 # `*_pareto.png`, `what_to_pick.md`.
 #
@@ -35,8 +35,8 @@
 #   time it would have taken), so the tolerance axis costs no extra runs;
 # - error of a setting: the largest relative error over E1, E2, E3, G23, G13, G12, leaving out constants below
 #   1 % of the largest (E1 of the γ = 0.1 foam: not resolved at these N);
-# - wall time: the FFT solver's on one thread (set-up and six load cases) or the beam's (problem set-up + Newton), not the
-#   foam generation or meshing, which any setting pays once;
+# - wall time: the FFT solver's on one thread (set-up and six load cases) or the beam's (problem set-up +
+#   Newton), not the foam generation or meshing, which any setting pays once;
 # - FEM cross-check: zero void, two-phase mesh_rve at h = 1/n (n grid cubes per side); difference of a constant
 #   `(X_fem − X_ref) / |X_ref|`. P2 on a mesh is below P1 in energy (nested spaces), P1 is far too stiff in
 #   bending-dominated struts, and the piecewise-linear interface loses solid volume (biasing the FEM low), so
@@ -68,11 +68,12 @@ TARGETS = (0.1, 0.03, 0.01, 0.003)
 BEAM = {"length": 0.25, "width": 0.015, "height": 0.015}
 BEAM_MATERIAL = {"E": 1.0e6, "nu": 0.3, "rho": 180.0}
 #: The Tripod study's scene (what `make demo` runs); its mesh size, degree and model are varied, nothing else.
-TRIPOD_SCENE = Path(__file__).resolve().parent / "scenes" / "tripod_case_b.toml"
+TRIPOD_SCENE = Path(__file__).resolve().parents[1] / "demos" / "scenes" / "tripod_case_b.toml"
 #: The load steps the study reports (the scene's); the error is measured at the last one.
 TRIPOD_STEPS = ("rest", "middle", "top")
 
-# Study sizes. "ci" runs in seconds, "default" in ~10 min serial, "full" is the issue's grid (README's tables).
+# Study sizes. "ci" runs in seconds, "default" in ~10 min serial, "full" is the complete grid (the tables of
+# docs/benchmarks/).
 # fft: blocks of runs, each N × discretization × void of a block run once to the block's tol, recording every
 # tolerance of "tols" down to it; the reference pair must be among the rotated, zero-void runs at reference_tol.
 # rve_resolution: n_cells → N, N ≈ 16 ∛n_cells so that every RVE has ~16 voxels per cell width.
@@ -236,7 +237,8 @@ def run_job(size: dict, job: dict, cache: dict) -> list[dict]:
                                comm=MPI.COMM_SELF)
             rows.append({**common, "h": f"1/{job['n']}", "tets": rve.n_elements, "degree": degree,
                          "dofs": r.info["n_dofs"], "solid_fraction": r.info["volume_fractions"][SOLID],
-                         "mesh_s": rve.meshing_s, "wall_s": r.wall_s, **{f"C{j + 1}{j + 1}": r.C[j, j] for j in range(6)}})
+                         "mesh_s": rve.meshing_s, "wall_s": r.wall_s,
+                         **{f"C{j + 1}{j + 1}": r.C[j, j] for j in range(6)}})
             try:
                 rows[-1].update(zip(CONSTANTS, constants_of(r.C)))
             except InadmissibleMaterialError as error:   # the meshed solid does not percolate at this h
@@ -268,7 +270,8 @@ def run_job(size: dict, job: dict, cache: dict) -> list[dict]:
     return rows
 
 
-def homogenization_study(comm: MPI.Comm, size: dict, store: Path, resume: bool = False) -> tuple[list[dict], list[dict], list[dict]] | None:
+def homogenization_study(comm: MPI.Comm, size: dict, store: Path, resume: bool = False
+                         ) -> tuple[list[dict], list[dict], list[dict]] | None:
     """Rows of the FFT resolution study, of the FEM cross-check and of the RVE-size study (rank 0; None elsewhere).
 
     Per foam the FFT reference is the Richardson extrapolation of the rotated, zero-void runs at
@@ -284,7 +287,7 @@ def homogenization_study(comm: MPI.Comm, size: dict, store: Path, resume: bool =
     for density, gamma in size["foams"]:
         foam_rows = [r for r in rows if (r["density"], r["gamma"]) == (density, gamma)]
 
-        def at(N):
+        def at(N, foam_rows=foam_rows):
             match = [r for r in foam_rows if r["kind"] == "fft" and r["N"] == N and r["discretization"] == "rotated"
                      and r["void"] == 0.0 and r["tol"] == size["reference_tol"]]
             return np.array([match[0][k] for k in CONSTANTS])
@@ -550,7 +553,8 @@ def fft_table(size: dict, hom_rows: list[dict]) -> str:
              "|" + "---|" * (4 + len(tols))]
     runs = dict.fromkeys((r["density"], r["gamma"], r["N"], r["discretization"], r["void"]) for r in hom_rows)
     for run in runs:
-        at = {r["tol"]: r for r in hom_rows if (r["density"], r["gamma"], r["N"], r["discretization"], r["void"]) == run}
+        at = {r["tol"]: r for r in hom_rows
+              if (r["density"], r["gamma"], r["N"], r["discretization"], r["void"]) == run}
         cells = [f"{at[t]['error']:.2g} / {at[t]['iterations']} / {at[t]['wall_s']:.3g}"
                  + ("" if at[t]["converged"] else " (n.r.)") if t in at else "–" for t in tols]
         lines.append(f"| ρ={run[0]} γ={run[1]} | {run[2]} | {run[3]} | {run[4]:g} | " + " | ".join(cells) + " |")
@@ -695,10 +699,11 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser(description="Speed ↔ accuracy study: FFT homogenization, beam, Tripod case B.")
     parser.add_argument("--out", type=Path, required=True, help="output directory")
     parser.add_argument("--size", choices=sorted(SIZES), default="default",
-                        help="study size: ci (seconds), default (~10 min serial), full (the issue's grid, hours)")
+                        help="study size: ci (seconds), default (~10 min serial), full (the complete grid, hours)")
     parser.add_argument("--ci", action="store_const", const="ci", dest="size", help="same as --size ci")
     parser.add_argument("--resume", action="store_true",
-                        help="reuse the homogenization jobs already in OUT/jobs (an interrupted run) instead of rerunning")
+                        help="reuse the homogenization jobs already in OUT/jobs (an interrupted run) instead of "
+                             "rerunning")
     args = parser.parse_args()
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     failed = main(args.out, args.size, resume=args.resume)
