@@ -17,6 +17,8 @@ from typing import Any
 
 from mpi4py import MPI
 
+from foambase.logs import setup_logging
+
 #: The shipped scene files.
 SCENES = Path(__file__).resolve().parent / "scenes"
 #: The paper's Table I, (simulated, real) at rest, middle, top: centre rotation (deg), centre height (mm).
@@ -75,11 +77,25 @@ def run_and_check(run: Callable[[Path, bool, MPI.Comm], dict], check: Callable[[
     return report(failures, comm)
 
 
+class _DemoParser(argparse.ArgumentParser):
+    """An argument parser that also sets up logging (quiet unless ``-v``) once the arguments are read."""
+
+    def parse_args(self, args=None, namespace=None):  # noqa: D102 - argparse's own
+        parsed = super().parse_args(args, namespace)
+        setup_logging(parsed.verbose)
+        return parsed
+
+
 def parser(description: str, default_out: str, ci_help: str) -> argparse.ArgumentParser:
-    """An argument parser with ``--out DIR`` and ``--ci``, the options every demo takes (add your own)."""
-    p = argparse.ArgumentParser(description=description)
+    """An argument parser with ``--out DIR``, ``--ci`` and ``-v``, the options every demo takes (add your own).
+
+    Parsing sets up logging as the ``fenicsfoam`` command does: warnings only, ``-v`` also INFO (among it the
+    compiler lines of FFCx's JIT), ``-vv`` DEBUG.
+    """
+    p = _DemoParser(description=description)
     p.add_argument("--out", type=Path, default=Path(default_out), help="output directory")
     p.add_argument("--ci", action="store_true", help=ci_help)
+    p.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-v INFO, -vv DEBUG)")
     return p
 
 

@@ -153,12 +153,22 @@ def _homogenize(args: argparse.Namespace) -> int:
     return 0
 
 
+_HOMOGENIZE_DESCRIPTION = (
+    "FFT homogenization of a stochastic Voronoi foam (--density ...) or of a 0/1 phase image (--image), written as "
+    "JSON: C (Voigt), engineering constants, the TI fit with l = x and its error, the isotropic fit, iterations, "
+    "timings, inputs and software versions. The solid is isotropic (--E-solid, --nu-solid), the void has zero "
+    "stiffness.")
+_TABLE_DESCRIPTION = (
+    "The foam-table sweep: every (density, gamma, seed) foam homogenized by the FFT solver; each finished sample "
+    "is cached (an interrupted sweep resumes), under mpirun the samples are dealt to the ranks. Writes "
+    "foam_table_samples.csv, foam_table.csv (mean and std over seeds) and foam_table_provenance.json into --out.")
+
 #: The inputs recorded in the JSON: the arguments of the command (not the dispatcher's).
 _HOMOGENIZE_INPUTS = ("density", "image", "gamma", "cells", "seed", "resolution", "E_solid", "nu_solid", "scheme",
                       "discretization", "tol", "maxiter", "threads", "out")
 
 HOMOGENIZE = Command("homogenize", "FFT homogenization of a foam (--density) or a phase image (--image) to JSON",
-                     _homogenize_arguments, _homogenize, description=__doc__.split("\n\n")[1],
+                     _homogenize_arguments, _homogenize, description=_HOMOGENIZE_DESCRIPTION,
                      check=_homogenize_check)
 
 
@@ -169,14 +179,14 @@ def _table_arguments(p: argparse.ArgumentParser) -> None:
     from homogenization import tables
 
     p.add_argument("--out", type=Path, required=True, help="directory of the three table files")
-    p.add_argument("--cache", type=Path, default=None, help="one JSON per finished sample (default: OUT/cache)")
+    p.add_argument("--cache", type=Path, default=None, help="one JSON per finished sample; None: OUT/cache")
     p.add_argument("--densities", type=float, nargs="+", default=tables.DENSITIES, help="relative densities")
     p.add_argument("--gammas", type=float, nargs="+", default=tables.GAMMAS, help="degrees of anisotropy γ")
     p.add_argument("--seeds", type=int, nargs="+", default=tables.SEEDS, help="random seeds per (density, γ)")
     p.add_argument("--cells", type=int, default=tables.SweepSettings.n_cells, help="Voronoi cells per RVE")
     p.add_argument("--resolution", type=int, default=tables.SweepSettings.resolution, help="voxels per side N")
     p.add_argument("--tol", type=float, default=tables.SweepSettings.tol, help="FFT (CG) tolerance")
-    p.add_argument("--threads", type=int, default=None, help="FFTW threads per rank (default: CPUs / ranks)")
+    p.add_argument("--threads", type=int, default=None, help="FFTW threads per rank; None: CPUs / ranks")
 
 
 def _table_check(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
@@ -232,7 +242,7 @@ def _table(args: argparse.Namespace) -> int:
 
 
 TABLE = Command("table", "the foam-table sweep: density × γ × seed → foam_table*.csv (resumable, MPI-aware)",
-                _table_arguments, _table, description=__doc__.split("\n\n")[2], check=_table_check)
+                _table_arguments, _table, description=_TABLE_DESCRIPTION, check=_table_check)
 
 
 # --------------------------------------------------------------------------------------------------

@@ -21,14 +21,15 @@ DEMOS = sorted(p for folder in ("demos", "studies") for p in (ROOT / folder).glo
 TIMEOUT_S = 900
 
 
-def _run(command: list[str], cwd: Path) -> None:
+def _run(command: list[str], cwd: Path, **env_extra: str) -> subprocess.CompletedProcess:
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMPI_ALLOW_RUN_AS_ROOT": "1",
-           "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1", "OMPI_MCA_rmaps_base_oversubscribe": "1"}
+           "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1", "OMPI_MCA_rmaps_base_oversubscribe": "1", **env_extra}
     result = subprocess.run(command, cwd=cwd, env=env, capture_output=True, text=True, timeout=TIMEOUT_S)
     assert result.returncode == 0, (
         f"{' '.join(command)} exited with {result.returncode}\n--- stdout\n{result.stdout[-4000:]}"
         f"\n--- stderr\n{result.stderr[-4000:]}"
     )
+    return result
 
 
 def test_demos_and_studies_are_found():
@@ -39,6 +40,15 @@ def test_demos_and_studies_are_found():
 @pytest.mark.parametrize("demo", DEMOS, ids=lambda p: f"{p.parent.name}/{p.stem}")
 def test_demo_serial(demo, tmp_path):
     _run([sys.executable, str(demo), "--ci", "--out", str(tmp_path / "out")], cwd=tmp_path)
+
+
+def test_make_demo_is_quiet(tmp_path):
+    """``make demo``'s pipeline with an empty FFCx cache (every form compiled afresh) prints no INFO line."""
+    result = _run([sys.executable, str(ROOT / "demos" / "pipeline.py"), "--ci", "--out", str(tmp_path / "out")],
+                  cwd=tmp_path, XDG_CACHE_HOME=str(tmp_path / "cache"))
+    chatter = [line for line in (result.stdout + result.stderr).splitlines() if "INFO" in line]
+    assert not chatter, f"{len(chatter)} INFO lines, e.g. {chatter[:3]}"
+    assert "all checks passed" in result.stdout
 
 
 @pytest.mark.parametrize("demo", DEMOS, ids=lambda p: f"{p.parent.name}/{p.stem}")
