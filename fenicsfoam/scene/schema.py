@@ -11,6 +11,7 @@ from __future__ import annotations
 import copy
 import math
 import os
+import re
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -22,7 +23,7 @@ from fenicsfoam.orientation import HANDEDNESS
 from fenicsfoam.scene.kinds import LOAD_KINDS, PROBE_KINDS, MeshInfo
 from fenicsfoam.scene.table import SceneError, _Table, _tags, _type_name, _vector
 
-__all__ = ["Region", "Scene", "Step", "load_scene", "parse_scene"]
+__all__ = ["LABEL_PATTERN", "RESERVED_NAMES", "Region", "Scene", "Step", "load_scene", "parse_scene"]
 
 MATERIAL_KEYS: dict[str, dict[str, tuple[bool, float | None]]] = {
     # key: (required, default)
@@ -47,6 +48,12 @@ MATERIAL_CHECKS: dict[str, dict[str, Any]] = {
 ORIENTATION_KINDS = ("uniform", "per_tag", "spiral", "callable")
 #: The options prefix of every scene's SNES (command-line options: ``-scene_snes_rtol 1e-8``).
 PETSC_PREFIX = "scene_"
+#: Step labels name output files (``<label>.png``), so they are safe file names on every platform: ASCII letters,
+#: digits, ``_``, ``-`` and ``.``, starting with a letter or a digit, at most 64 characters.
+LABEL_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
+#: Names of a run's fixed outputs (``summary.json``, ``probes.csv``, ``solution.xdmf``, ``orientation.png``): no
+#: step label may take one (compared without case, as case-insensitive file systems do).
+RESERVED_NAMES = ("summary", "probes", "solution", "orientation")
 
 
 # --------------------------------------------------------------------------------------------------
@@ -258,8 +265,21 @@ def _read_loads(scene: _Table, mesh: MeshInfo) -> dict[str, Any]:
     return loads
 
 
-def _read_step(table: _Table, servos: bool) -> Step:
+def _read_label(table: _Table) -> str:
+    """A step label: a safe file name (:data:`LABEL_PATTERN`) that is not a fixed output's (:data:`RESERVED_NAMES`)."""
     label = table.string("label", required=True)
+    if not LABEL_PATTERN.fullmatch(label):
+        raise SceneError(f"{table.key('label')}: {label!r} is not a valid step label (it names the step's picture "
+                         "file); valid: 1 to 64 ASCII letters, digits, '_', '-' or '.', starting with a letter or "
+                         "a digit")
+    if label.lower() in RESERVED_NAMES:
+        raise SceneError(f"{table.key('label')}: {label!r} is the name of a fixed output of a run; choose another "
+                         f"label (reserved: {', '.join(RESERVED_NAMES)})")
+    return label
+
+
+def _read_step(table: _Table, servos: bool) -> Step:
+    label = _read_label(table)
     gravity = table.number("gravity", check=lambda v: v >= 0, valid="a load factor >= 0 (1: full gravity)")
     servo = table.raw("servo_deg")
     if servo is not None:
@@ -281,10 +301,12 @@ def _read_steps(scene: _Table, loads: Mapping[str, Any]) -> tuple[Step, ...]:
     if not isinstance(value, list) or not value:
         raise SceneError(f"steps: expected a non-empty array of tables ([[steps]]), got {_type_name(value)}")
     steps = tuple(_read_step(_Table(s, f"steps[{i}]"), loads["servos"]) for i, s in enumerate(value))
-    labels = [s.label for s in steps]
-    duplicated = sorted({label for label in labels if labels.count(label) > 1})
-    if duplicated:
-        raise SceneError(f"steps: labels must be distinct, {duplicated[0]!r} is repeated")
+    seen: dict[str, str] = {}
+    for i, step in enumerate(steps):  # distinct even without case: case-insensitive file systems
+        other = seen.setdefault(step.label.lower(), step.label)
+        if len(seen) <= i:
+            same = "is repeated" if other == step.label else f"differs from {other!r} only in case"
+            raise SceneError(f"steps[{i}].label: {step.label!r} {same}; labels must be distinct (they name files)")
     if loads["gravity"] is None and any(s.gravity for s in steps):
         raise SceneError("loads.gravity: a step sets a gravity factor but the scene gives no gravity vector")
     return steps
