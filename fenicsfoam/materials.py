@@ -240,6 +240,8 @@ def foam_material(density: float, gamma: float, E_solid: float, nu_solid: float,
         raise InputError(f"fit must be one of {FOAM_FITS}, got {fit!r}")
     if not (np.isfinite(E_solid) and E_solid > 0):
         raise InadmissibleMaterialError(f"E_solid must be > 0 Pa, got {E_solid!r}")
+    if not (np.isfinite(rho_solid) and rho_solid >= 0):
+        raise InadmissibleMaterialError(f"rho_solid must be finite and >= 0 kg/m³, got {rho_solid!r}")
     if not np.isclose(nu_solid, NU_SOLID, rtol=0, atol=1e-12):
         raise InputError(f"nu_solid = {nu_solid!r}: the foam table was computed for a solid with nu = {NU_SOLID} "
                          "(moduli scale with E_solid, Poisson's ratio cannot be rescaled); recompute the table "

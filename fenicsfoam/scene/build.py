@@ -30,8 +30,10 @@ from fenicsfoam.constitutive import MaterialField
 from fenicsfoam.materials import Isotropic, TransverseIsotropic
 from fenicsfoam.scene.kinds import LOAD_KINDS, PROBE_KINDS, BuildContext
 from fenicsfoam.scene.schema import PETSC_PREFIX, Region, Scene
-from fenicsfoam.scene.table import SceneError
+from fenicsfoam.scene.table import SceneError, key_error
 from fenicsfoam.solver import ElasticityProblem, LoadStep
+from foambase.errors import InputError
+from foambase.mpi import on_every_rank
 from homogenization.tensors import InadmissibleMaterialError
 
 __all__ = ["Model", "build_model", "load_steps", "resolve_material"]
@@ -53,7 +55,11 @@ class Model:
 # Materials and orientation
 # --------------------------------------------------------------------------------------------------
 def resolve_material(region: Region):
-    """The :mod:`fenicsfoam.materials` object of a region (foam: through ``foam_material``)."""
+    """The :mod:`fenicsfoam.materials` object of a region (foam: through ``foam_material``).
+
+    A value the material refuses is a :class:`SceneError` naming the key (``regions.plate.E_solid``; for a
+    condition on several constants the first one the message mentions, with the others).
+    """
     path = f"regions.{region.name}"
     try:
         if region.material == "isotropic":
@@ -70,7 +76,7 @@ def resolve_material(region: Region):
     except (InadmissibleMaterialError, ValueError) as exc:
         if isinstance(exc, SceneError):
             raise
-        raise SceneError(f"{path}: {exc}") from exc
+        raise key_error(path, region.parameters, str(exc)) from exc
 
 
 def _material_record(material) -> dict[str, Any]:
@@ -78,11 +84,22 @@ def _material_record(material) -> dict[str, Any]:
 
 
 def _import_callable(spec: str) -> Callable[[np.ndarray], np.ndarray]:
+    """The user's ``module:function``; any exception it raises becomes a :class:`SceneError` naming it."""
     module, _, name = spec.partition(":")
     try:
-        return getattr(importlib.import_module(module), name)
-    except (ImportError, AttributeError) as exc:
-        raise SceneError(f"orientation.function: cannot import {spec!r}: {exc}") from exc
+        function = getattr(importlib.import_module(module), name)
+    except Exception as exc:  # ImportError, AttributeError, or whatever the module raises when imported
+        raise SceneError(f"orientation.function: cannot import {spec!r}: {type(exc).__name__}: {exc}") from exc
+    if not callable(function):
+        raise SceneError(f"orientation.function: {spec!r} is a {type(function).__name__}, not a function")
+
+    def directions(x: np.ndarray) -> np.ndarray:
+        try:
+            return function(x)
+        except Exception as exc:
+            raise SceneError(f"orientation.function: {spec}(x) raised {type(exc).__name__}: {exc}; it must map "
+                             "an (n, 3) array of points (m) to an (n, 3) array of directions") from exc
+    return directions
 
 
 def _check_orientation(scene: Scene, materials: Mapping[str, Any]) -> None:
@@ -117,10 +134,13 @@ def _build_orientation(scene: Scene, mesh, cell_tags):
     spec = scene.orientation
     if spec is None:
         return None
-    try:
-        return ORIENTATIONS[spec["kind"]](mesh, cell_tags, spec)
-    except orient.OrientationError as exc:
-        raise SceneError(f"orientation: {exc}") from exc
+    def build():
+        try:
+            return ORIENTATIONS[spec["kind"]](mesh, cell_tags, spec)
+        except orient.OrientationError as exc:
+            raise SceneError(f"orientation: {exc}") from exc
+    # a user's function may fail on some ranks' cells only: every rank stops with the same error
+    return on_every_rank(mesh.comm, build, "the orientation field failed")
 
 
 # --------------------------------------------------------------------------------------------------
@@ -141,13 +161,24 @@ def _mesh_tripod(comm, params: dict[str, Any]):
     h, order = params.pop("h"), params.pop("order")
     try:
         geometry = TripodGeometry(**params)
-    except ValueError as exc:
-        raise SceneError(f"geometry: {exc}") from exc
+    except ValueError as exc:  # named by _build_mesh
+        raise InputError(str(exc)) from exc
     return make_tripod(comm, h, geometry, order)
 
 
 #: Geometry builders: ``[geometry] builder`` → function(comm, parameters) of the tagged mesh.
 MESHERS: dict[str, Callable] = {"file": _mesh_file, "beam": _mesh_beam, "tripod": _mesh_tripod}
+
+
+def _build_mesh(scene: Scene, comm):
+    """The builder's tagged mesh; a parameter the builder refuses is a :class:`SceneError` naming the key."""
+    params = dict(scene.geometry)
+    try:
+        return MESHERS[scene.builder](comm, dict(params))
+    except InputError as exc:
+        if isinstance(exc, SceneError):
+            raise
+        raise key_error("geometry", params, str(exc)) from exc
 
 
 # --------------------------------------------------------------------------------------------------
@@ -165,7 +196,7 @@ def build_model(scene: Scene, comm) -> Model:
     """Build the mesh, the problem and the probes of a validated scene (collective)."""
     resolved = {region.name: resolve_material(region) for region in scene.regions}  # before meshing: fail fast
     _check_orientation(scene, resolved)
-    tagged = MESHERS[scene.builder](comm, dict(scene.geometry))
+    tagged = _build_mesh(scene, comm)
     mesh, cell_tags = tagged.mesh, tagged.cell_tags
     materials = {tag: resolved[region.name] for region in scene.regions for tag in region.tags}
     field = MaterialField.from_regions(mesh, cell_tags, materials)

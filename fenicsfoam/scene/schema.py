@@ -382,6 +382,8 @@ def load_scene(source: str | os.PathLike | Mapping[str, Any]) -> Scene:
             data = tomllib.load(f)
     except tomllib.TOMLDecodeError as exc:  # the message gives line and column
         raise SceneError(f"{path}: not valid TOML: {exc}") from exc
+    except UnicodeDecodeError as exc:  # a binary file: TOML is UTF-8 text
+        raise SceneError(f"{path}: not a TOML text file (not UTF-8 at byte {exc.start})") from exc
     except OSError as exc:
         raise SceneError(f"cannot read scene {path}: {exc}") from exc
     try:

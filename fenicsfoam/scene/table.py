@@ -8,7 +8,8 @@ naming the key path and what would be valid.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+import re
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
 from foambase.errors import InputError
@@ -124,3 +125,21 @@ def _tags(value: Any, path: str, named: Mapping[str, tuple[int, ...]], what: str
         return tuple(value)
     raise SceneError(f"{path}: expected an integer tag, an array of integer tags or a {what} name, "
                      f"got {_type_name(value)} {value!r}")
+
+
+def key_error(path: str, keys: Iterable[str], message: str) -> SceneError:
+    """A :class:`SceneError` for a library's ``message`` about the values of ``path``'s ``keys``, naming the keys.
+
+    The keys that the message mentions (as words) are named in the order it mentions them, the first one as the key
+    path: ``regions.plate.nu_tl (with E_l, E_t): ...``; a message that names none is given as ``path: message``.
+    """
+    positions = {}
+    for key in keys:
+        match = re.search(rf"(?<![A-Za-z0-9_.]){re.escape(key)}(?![A-Za-z0-9_])", message)
+        if match:
+            positions[key] = match.start()
+    named = sorted(positions, key=positions.get)
+    if not named:
+        return SceneError(f"{path}: {message}")
+    others = f" (with {', '.join(named[1:])})" if len(named) > 1 else ""
+    return SceneError(f"{path}.{named[0]}{others}: {message}")
