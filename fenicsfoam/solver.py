@@ -48,6 +48,7 @@ from fenicsfoam.constitutive import MaterialField, Model, PolarRotation, as_mode
 from fenicsfoam.stability import EllipticityCheck, ellipticity_margin
 from foambase.errors import InputError, NotConvergedError
 from foambase.nullspace import rigid_body_modes
+from foambase.petsc_options import option_used
 
 __all__ = ["ConvergenceError", "ElasticityProblem", "LoadState", "LoadStep", "StepStats", "rigid_body_modes"]
 
@@ -257,6 +258,8 @@ class ElasticityProblem:
         self._b = create_vector(self._residual)
         self._x = self.u.vector.duplicate()  # SNES iterate: never u's own storage, which trial points overwrite
         self._synced = (None, None)  # (handle, state) of the vector last copied into u
+        self._given_options = [prefix + key for key in (options or {}) if key != "mat_type"]
+        self._used_options: set[str] = set()
         options = {**self.default_options(), **(options or {})}
         db = PETSc.Options()
         # Options already in the database (the command line) win over ours.
@@ -363,7 +366,20 @@ class ElasticityProblem:
             yield
         finally:
             for key in self._options:
+                if option_used(key):
+                    self._used_options.add(key)
                 db.delValue(key)
+
+    def unused_options(self) -> list[str]:
+        """The ``options=`` given to this problem (keys without prefix) that PETSc has not read so far.
+
+        Options of the solver itself are read when it is configured; some only when it is set up or a solve ends
+        (:func:`foambase.petsc_options.deferred`), so ask after a solve. Options given on the command line
+        override ours and are not ours to report.
+        """
+        command_line = PETSc.Options().getAll()  # (hasName would mark them used)
+        return [key[len(self._snes.getOptionsPrefix()):] for key in self._given_options
+                if key not in self._used_options and key not in command_line]
 
     @staticmethod
     def _inversion_points(mesh: Mesh) -> np.ndarray:
