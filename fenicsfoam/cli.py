@@ -13,12 +13,14 @@ single-threaded, so command modules import numpy only inside their functions or 
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
-from pathlib import Path
 
 from foambase import cli
 
 __all__ = ["COMMANDS", "INFO", "RUN", "main"]
+
+logger = logging.getLogger(__name__)
 
 #: The sub-commands, in the order ``fenicsfoam --help`` lists them.
 COMMANDS: tuple[str, ...] = (
@@ -53,21 +55,35 @@ def _info(_: argparse.Namespace) -> int:
 
 
 def _run_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("scene", type=Path, help="the scene file (TOML)")
-    parser.add_argument("--out", type=Path, required=True, help="output directory (created if needed)")
+    parser.add_argument("scene", type=cli.nonempty_path, help="the scene file (TOML)")
+    parser.add_argument("--out", type=cli.nonempty_path, required=True,
+                        help="output directory: new, empty, or a previous run's folder (its files are replaced)")
 
 
 def _run(args: argparse.Namespace) -> int:
-    """Run a scene file; PETSc options after ``--`` go to the options database (they override the scene's)."""
+    """Run a scene file; PETSc options after ``--`` go to the options database (they override the scene's).
+
+    The output directory is checked before the scene is read (``--out`` named in the error); command-line PETSc
+    options that nothing has read by the end of the run are reported in a warning (as PETSc's ``-options_left``).
+    """
     from mpi4py import MPI
     from petsc4py import PETSc
 
     from fenicsfoam.scene import run_scene
+    from fenicsfoam.scene.outputs import RunFolder
+    from foambase.petsc_options import unused_command_line_options
 
     comm = MPI.COMM_WORLD
+    RunFolder(args.out, comm, what="--out").check()
     if args.passthrough:
         PETSc.Options().insertString(" ".join(args.passthrough))
-    result = run_scene(args.scene, args.out, comm=comm)
+    try:
+        result = run_scene(args.scene, args.out, comm=comm)
+    finally:
+        unused = unused_command_line_options(args.passthrough)
+        if unused:
+            logger.warning("PETSc options after '--' that nothing used: %s (misspelt, or not options of this "
+                           "solver; the scene's solver options take the prefix -%s)", " ".join(unused), "scene_")
     if comm.rank == 0:
         print(result.table())
         print(f"outputs in {args.out}")

@@ -15,12 +15,16 @@ code  meaning
 2     bad input, detected before any work: argparse usage errors, a command's usage check, and
       :class:`~foambase.errors.InputError` (e.g. an invalid scene)
 3     a solver did not converge (:class:`~foambase.errors.NotConvergedError`)
+130   interrupted by SIGINT (Ctrl-C); 143: by SIGTERM (``128 +`` the signal number,
+      :mod:`foambase.signals`)
 ====  ======================================================================================
 
 Before anything else, the entry points keep OpenBLAS single-threaded unless the user said otherwise
 (:func:`foambase.threads.single_threaded_blas_by_default`; it must happen before numpy is imported, which is why the
 registry is imported lazily), then set up logging on rank 0 (:func:`foambase.logs.setup_logging`: ``-v`` INFO,
-``-vv`` DEBUG). Errors of the family are printed once, on rank 0, as ``PROG COMMAND: error: message``.
+``-vv`` DEBUG). Errors of the family are printed once, on rank 0, as ``PROG COMMAND: error: message``. The command
+runs inside :func:`foambase.signals.interruptible`: a SIGTERM unwinds like a Ctrl-C (clean-up code runs, temporary
+files are removed) and either is reported as ``PROG COMMAND: interrupted by SIGNAL``.
 """
 
 from __future__ import annotations
@@ -30,15 +34,20 @@ import importlib
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 from foambase.errors import EXIT_OK, FenicsfoamError, exit_code
 from foambase.logs import launcher_rank, setup_logging
+from foambase.signals import interruptible
 from foambase.threads import single_threaded_blas_by_default
 
-__all__ = ["EPILOG", "Command", "build_parser", "dispatch", "main", "main_single", "resolve"]
+__all__ = ["EPILOG", "Command", "build_parser", "dispatch", "main", "main_single", "nonempty_path", "resolve"]
 
+#: The exit status of a Ctrl-C (128 + SIGINT).
+EXIT_INTERRUPTED = 130
 #: The exit-code table, shown under every ``--help``.
-EPILOG = "exit status: 0 ok, 1 other failure, 2 bad input (before any work), 3 a solver did not converge"
+EPILOG = ("exit status: 0 ok, 1 other failure, 2 bad input (before any work), 3 a solver did not converge, "
+          "130/143 interrupted (SIGINT/SIGTERM)")
 
 
 @dataclass(frozen=True)
@@ -72,6 +81,13 @@ class Command:
     description: str = ""
     check: Callable[[argparse.ArgumentParser, argparse.Namespace], None] | None = None
     passthrough: bool = False
+
+
+def nonempty_path(text: str) -> Path:
+    """An ``argparse`` type: a path, refusing the empty string (which ``Path`` would read as ``.``)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("an empty path")
+    return Path(text)
 
 
 def resolve(spec: str) -> Command:
@@ -121,14 +137,19 @@ def dispatch(parser: argparse.ArgumentParser, argv: Sequence[str]) -> int:
         own_parser.error(f"unrecognized arguments after '--': {' '.join(passthrough)}")
     args.passthrough = passthrough
     setup_logging(args.verbose + getattr(args, "verbose_global", 0))
-    if command.check is not None:
-        command.check(own_parser, args)
     try:
-        status = command.run(args)
+        with interruptible():
+            if command.check is not None:
+                command.check(own_parser, args)
+            status = command.run(args)
     except FenicsfoamError as error:
         if launcher_rank() == 0:
             print(f"{own_parser.prog}: error: {error}", file=sys.stderr)
         return exit_code(error)
+    except KeyboardInterrupt as interruption:  # foambase.signals.Interrupted carries its signal's exit status
+        if launcher_rank() == 0:
+            print(f"{own_parser.prog}: {interruption or 'interrupted'}", file=sys.stderr)
+        return getattr(interruption, "exit_code", EXIT_INTERRUPTED)
     return EXIT_OK if status is None else int(status)
 
 

@@ -2,9 +2,14 @@
 
 Every writer goes through :func:`atomic_path`: the content is written to a temporary file in the target's own
 directory (so that the final rename stays within one file system) and moved onto the target by ``os.replace``,
-which POSIX makes atomic. On an exception the temporary file is removed and the target is left untouched. The
-temporary name keeps the target's suffix, so writers that choose a format by the file name (PNG screenshots, STL,
-a compiler's output) work unchanged. Files are created with the usual permissions (``0o666`` less the umask).
+which POSIX makes atomic. On an exception (or a SIGINT/SIGTERM, :mod:`foambase.signals`) the temporary file is
+removed and the target is left untouched. The temporary name (``.NAME.PID.TOKEN.tmp.SUFFIX``, :data:`TEMPORARY`)
+keeps the target's suffix, so writers that choose a format by the file name (PNG screenshots, STL, a compiler's
+output) work unchanged. Files are created with the usual permissions (``0o666`` less the umask).
+
+Outputs are checked before any work: :func:`check_output_file` and :func:`check_output_dir` raise an
+:class:`~foambase.errors.InputError` naming the argument when a file or directory cannot be written there (an empty
+path, a directory where a file is expected or the reverse, a missing or read-only directory).
 """
 
 from __future__ import annotations
@@ -12,12 +17,20 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import secrets
 from collections.abc import Iterator
 from pathlib import Path
 from typing import IO, Any
 
-__all__ = ["atomic_open", "atomic_path", "write_json_atomic", "write_text_atomic"]
+from foambase.errors import InputError
+from foambase.signals import discard_temporary, register_temporary
+
+__all__ = ["TEMPORARY", "atomic_open", "atomic_path", "check_output_dir", "check_output_file", "write_json_atomic",
+           "write_text_atomic"]
+
+#: The names of :func:`atomic_path`'s temporary files (left behind only by a process that was killed).
+TEMPORARY = re.compile(r"^\..*\.\d+\.[0-9a-f]{8}\.tmp(\.[^.]*)?$")
 
 
 @contextlib.contextmanager
@@ -28,13 +41,15 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """
     path = Path(path)
     tmp = path.with_name(f".{path.stem}.{os.getpid()}.{secrets.token_hex(4)}.tmp{path.suffix}")
-    os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+    register_temporary(tmp)
     try:
+        os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
         yield tmp
         os.replace(tmp, path)
     finally:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
+        discard_temporary(tmp)
 
 
 @contextlib.contextmanager
@@ -62,3 +77,74 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
 def write_json_atomic(path: str | os.PathLike, data: Any, indent: int = 2) -> Path:
     """Write ``data`` as JSON (``indent``, a final newline) to ``path`` atomically; returns the path."""
     return write_text_atomic(path, json.dumps(data, indent=indent) + "\n")
+
+
+def _writable(directory: Path) -> bool:
+    """Whether a file can be created in ``directory`` (tried: permissions, read-only file systems, root)."""
+    try:
+        fd, probe = _probe(directory)
+    except OSError:
+        return False
+    os.close(fd)
+    os.unlink(probe)
+    return True
+
+
+def _probe(directory: Path) -> tuple[int, Path]:
+    probe = directory / f".write-test.{os.getpid()}.{secrets.token_hex(4)}"
+    return os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600), probe
+
+
+def _existing_ancestor(path: Path, what: str) -> Path:
+    """The nearest existing ancestor of ``path``, which must be a directory (it will hold the new directories)."""
+    for parent in path.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise InputError(f"{what} {path}: {parent} is a file, not a directory")
+            return parent
+    return Path.cwd()  # pragma: no cover - a relative path's ancestors end at "."
+
+
+def check_output_file(path: str | os.PathLike | None, what: str = "output file") -> Path:
+    """Check, before any work, that a file can be written at ``path`` (in an existing directory).
+
+    Raises :class:`~foambase.errors.InputError` naming ``what`` (e.g. ``--out``): an empty path, a directory
+    at ``path``, a missing directory, a file where a directory is needed, or a directory where nothing can be
+    created.
+    """
+    if path is None or not str(path).strip():
+        raise InputError(f"{what}: an empty path; give a file name")
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{what} {path}: is a directory; give a file name")
+    if path.exists() and not path.is_file():
+        raise InputError(f"{what} {path}: exists and is not a regular file")
+    parent = path.parent
+    if not parent.exists():
+        _existing_ancestor(path, what)  # names a file on the way
+        raise InputError(f"{what} {path}: directory {parent} does not exist")
+    if not parent.is_dir():
+        raise InputError(f"{what} {path}: {parent} is a file, not a directory")
+    if not _writable(parent):
+        raise InputError(f"{what} {path}: cannot create files in {parent} (read-only or no permission)")
+    return path
+
+
+def check_output_dir(path: str | os.PathLike | None, what: str = "output directory") -> Path:
+    """Check, before any work, that ``path`` is a directory (or can be created) in which files can be written.
+
+    Raises :class:`~foambase.errors.InputError` naming ``what``: an empty path, a file at ``path`` or on the
+    way to it, or a directory where nothing can be created.
+    """
+    if path is None or not str(path).strip():
+        raise InputError(f"{what}: an empty path; give a directory")
+    path = Path(path)
+    if path.exists():
+        if not path.is_dir():
+            raise InputError(f"{what} {path}: is a file, not a directory")
+        target = path
+    else:
+        target = _existing_ancestor(path, what)
+    if not _writable(target):
+        raise InputError(f"{what} {path}: cannot create files in {target} (read-only or no permission)")
+    return path

@@ -2,6 +2,23 @@
 
 Every file is written atomically (:mod:`foambase.files`; the XDMF series in a temporary directory moved into place
 at the end), the text files and pictures by rank 0 only, so an interrupted run never leaves a half-written file.
+
+Run folders (:class:`RunFolder`): an output directory holds one run
+-------------------------------------------------------------------
+* Before any work, the directory is checked: it may be new, empty, or a previous run's folder (one with a
+  ``summary.json`` written by a run); a directory that holds anything else is refused (:class:`InputError`), so a
+  run never mixes its files with, or removes, files it did not write.
+* When the run starts (after the scene is built), the previous run's files are removed — the files its
+  ``summary.json`` lists, the fixed outputs (:data:`FIXED_OUTPUTS`), the pictures of its steps, and temporary
+  files that a killed run left (:data:`foambase.files.TEMPORARY`, ``.solution.*``) — and ``summary.json`` is
+  written at once with ``"status": "incomplete"``. Files the run did not write (e.g. notes) are left alone.
+* ``summary.json`` is rewritten after every step (the steps done, the files written so far) and at the end with
+  ``"status"``: ``"complete"``; ``"failed"`` with ``error`` (a step did not converge, a solver option was not used);
+  ``"interrupted"`` with ``error`` naming the signal and the step (SIGINT, SIGTERM). A run killed outright keeps
+  ``"incomplete"``: a folder always says whether it holds a whole run.
+* Names are safe by construction: the only names that come from the scene are step labels, which the scene's
+  validation restricts to a safe character set (``fenicsfoam.scene.schema.LABEL_PATTERN``), and
+  :func:`output_path` refuses any name that is not a plain file name inside the folder.
 """
 
 from __future__ import annotations
@@ -9,6 +26,9 @@ from __future__ import annotations
 import contextlib
 import csv
 import io
+import json
+import logging
+import os
 import shutil
 import tempfile
 from dataclasses import dataclass, field
@@ -16,10 +36,22 @@ from pathlib import Path
 from typing import Any
 
 from fenicsfoam.scene.kinds import PROBE_UNITS
-from fenicsfoam.scene.schema import Scene
-from foambase.files import write_json_atomic, write_text_atomic
+from fenicsfoam.scene.schema import LABEL_PATTERN, Scene
+from foambase.errors import InputError
+from foambase.files import TEMPORARY, check_output_dir, write_json_atomic, write_text_atomic
+from foambase.mpi import on_rank0
+from foambase.signals import discard_temporary, register_temporary
 
-__all__ = ["SceneResult", "StepResult", "XdmfSeries", "picture_orientation", "picture_step", "write_summary"]
+__all__ = ["FIXED_OUTPUTS", "STATUSES", "RunFolder", "SceneResult", "StepResult", "XdmfSeries", "output_path",
+           "picture_orientation", "picture_step", "write_summary"]
+
+logger = logging.getLogger(__name__)
+
+#: The files every run may write besides its step pictures (``<label>.png``).
+FIXED_OUTPUTS = ("summary.json", "probes.csv", "solution.xdmf", "solution.h5", "orientation.png")
+#: ``summary.json``'s ``status``: how the run that wrote the folder ended (see the module docstring).
+STATUSES = ("incomplete", "complete", "failed", "interrupted")
+_XDMF_TEMPORARY = ".solution."
 
 
 @dataclass
@@ -54,6 +86,10 @@ class SceneResult:
     #: when a step failed: its label, the load factor reached and the strong-ellipticity check there
     failure: dict[str, Any] | None = None
     out_dir: Path | None = None
+    #: how the run ended (:data:`STATUSES`)
+    status: str = "incomplete"
+    #: the files written into ``out_dir`` (names)
+    files: list[str] = field(default_factory=list)
 
     def probe(self, name: str, relative_to: str | None = None) -> dict[str, float]:
         """``{step label: value}`` of a probe, minus its value at step ``relative_to`` if given."""
@@ -63,11 +99,11 @@ class SceneResult:
 
     def summary(self) -> dict[str, Any]:
         """The ``summary.json`` content: scene as read, steps with probes, sizes, timings, materials, errors."""
-        return {"scene": dict(self.scene.raw), "steps": [s.to_dict() for s in self.steps], "wall_s": self.wall_s,
-                "n_cells": self.n_cells, "n_dofs": self.n_dofs, "n_ranks": self.n_ranks,
+        return {"status": self.status, "scene": dict(self.scene.raw), "steps": [s.to_dict() for s in self.steps],
+                "wall_s": self.wall_s, "n_cells": self.n_cells, "n_dofs": self.n_dofs, "n_ranks": self.n_ranks,
                 "probe_units": {p: PROBE_UNITS[p] for p in self.scene.probes}, "materials": self.materials,
                 "model": self.scene.model, "degree": self.scene.degree, "error": self.error,
-                "failure": self.failure}
+                "failure": self.failure, "files": list(self.files)}
 
     def table(self) -> str:
         """Probes per step (lengths in mm, angles in degrees), Newton iterations and wall time."""
@@ -81,7 +117,7 @@ class SceneResult:
             values = " ".join(f"{s.probes[n] * scale[PROBE_UNITS[n]]:22.4f}" for n in names)
             lines.append(f"{s.label:>10s} {values} {s.newton_iterations:7d} {s.wall_s:9.2f}")
         if self.error:
-            lines.append(f"FAILED: {self.error}")
+            lines.append(f"{self.status.upper()}: {self.error}")
         return "\n".join(lines)
 
 
@@ -95,10 +131,103 @@ def _probes_csv(result: SceneResult) -> str:
     return buffer.getvalue()
 
 
+def output_path(out_dir: Path, name: str) -> Path:
+    """``out_dir / name`` for a plain file name (no directory part, not hidden); anything else is refused."""
+    if not name or name != os.path.basename(name) or name.startswith(".") or "\0" in name or "\\" in name:
+        raise InputError(f"{name!r} is not a plain file name: outputs are written inside {out_dir} only")
+    return out_dir / name
+
+
 def write_summary(result: SceneResult, out_dir: Path) -> None:
     """``summary.json`` and ``probes.csv`` in ``out_dir`` (call on one rank)."""
-    write_json_atomic(out_dir / "summary.json", result.summary())
+    for name in ("probes.csv", "summary.json"):
+        if name not in result.files:
+            result.files.append(name)
     write_text_atomic(out_dir / "probes.csv", _probes_csv(result))
+    write_json_atomic(out_dir / "summary.json", result.summary())
+
+
+def _previous_run(path: Path) -> dict[str, Any] | None:
+    """The summary of the run that wrote ``path``, or None if ``path`` is not a run folder."""
+    try:
+        summary = json.loads((path / "summary.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return summary if isinstance(summary, dict) and "scene" in summary and "steps" in summary else None
+
+
+def _previous_files(path: Path, summary: dict[str, Any]) -> set[str]:
+    """The names a previous run wrote: those it lists, the fixed outputs, its pictures, its temporaries."""
+    names = {n for n in summary.get("files", []) if isinstance(n, str)} | set(FIXED_OUTPUTS)
+    steps = summary.get("scene", {}).get("steps", []) if isinstance(summary.get("scene"), dict) else []
+    labels = [s.get("label") for s in [*summary.get("steps", []), *steps] if isinstance(s, dict)]
+    names |= {f"{label}.png" for label in labels if isinstance(label, str) and LABEL_PATTERN.fullmatch(label)}
+    names |= {p.name for p in path.iterdir() if p.name.startswith(_XDMF_TEMPORARY) or TEMPORARY.match(p.name)}
+    return {n for n in names if n == os.path.basename(n) and n not in ("", ".", "..")}
+
+
+class RunFolder:
+    """The output directory of one run (the rules: the module docstring). Collective methods say so.
+
+    Parameters
+    ----------
+    path
+        The directory.
+    comm
+        The run's communicator; rank 0 does the file work.
+    what
+        How the directory is named in error messages (``out_dir``; the command line says ``--out``).
+
+    """
+
+    def __init__(self, path: str | os.PathLike, comm, what: str = "out_dir"):
+        self.path, self.comm, self.what = Path(path), comm, what
+
+    def check(self) -> Path:
+        """Check before any work that the directory can hold this run (collective); :class:`InputError` if not."""
+        def check():
+            path = check_output_dir(self.path, self.what)
+            if path.is_dir() and any(path.iterdir()) and _previous_run(path) is None:
+                raise InputError(f"{self.what} {path}: the directory is not empty and not a run's output folder "
+                                 "(no summary.json of a run); give a new or empty directory, or a previous run's")
+            return path
+        on_rank0(self.comm, check, f"the output directory {self.path} cannot be used")
+        return self.path
+
+    def start(self, result: SceneResult) -> None:
+        """Remove the previous run's files and write ``summary.json`` with ``"status": "incomplete"`` (collective)."""
+        def start():
+            self.path.mkdir(parents=True, exist_ok=True)
+            previous = _previous_run(self.path)
+            if previous is not None:
+                for name in sorted(_previous_files(self.path, previous)):
+                    target = self.path / name
+                    if target.is_dir() and not target.is_symlink():
+                        shutil.rmtree(target, ignore_errors=True)
+                    else:
+                        with contextlib.suppress(FileNotFoundError):
+                            target.unlink()
+                logger.info("run folder %s: removed the previous run's files", self.path)
+            result.status, result.files = "incomplete", ["summary.json"]
+            write_json_atomic(self.path / "summary.json", result.summary())
+        on_rank0(self.comm, start, f"the output directory {self.path} could not be prepared")
+
+    def progress(self, result: SceneResult, *names: str) -> list[Path]:
+        """Record files about to be written and the steps done in ``summary.json`` (rank 0); their paths."""
+        paths = [output_path(self.path, name) for name in names]
+        result.files.extend(n for n in names if n not in result.files)
+        if self.comm.rank == 0:
+            write_json_atomic(self.path / "summary.json", result.summary())
+        return paths
+
+    def finish(self, result: SceneResult, status: str, error: str | None = None) -> None:
+        """Write the final ``summary.json`` and ``probes.csv`` (rank 0 only: safe when other ranks have stopped)."""
+        result.status = status
+        if error is not None:
+            result.error = error
+        if self.comm.rank == 0:
+            result.files = [n for n in result.files if (self.path / n).exists()]  # e.g. a picture interrupted
+            write_summary(result, self.path)
 
 
 class XdmfSeries:
@@ -111,8 +240,9 @@ class XdmfSeries:
     def __init__(self, comm, out_dir: Path, mesh):
         from dolfinx.io import XDMFFile
         self._comm, self._out = comm, out_dir
-        tmp = comm.bcast(tempfile.mkdtemp(dir=out_dir, prefix=".solution.") if comm.rank == 0 else None, root=0)
+        tmp = comm.bcast(tempfile.mkdtemp(dir=out_dir, prefix=_XDMF_TEMPORARY) if comm.rank == 0 else None, root=0)
         self._tmp = Path(tmp)
+        register_temporary(self._tmp)  # removed on every rank if a signal arrives
         self._file = XDMFFile(comm, str(self._tmp / "solution.xdmf"), "w")
         self._file.write_mesh(mesh)
 
@@ -128,20 +258,26 @@ class XdmfSeries:
             (self._tmp / "solution.h5").replace(self._out / "solution.h5")
             (self._tmp / "solution.xdmf").replace(self._out / "solution.xdmf")
             shutil.rmtree(self._tmp, ignore_errors=True)
+        discard_temporary(self._tmp)
         self._comm.Barrier()
 
-    def abort(self) -> None:
-        """Close the files and remove the temporary directory (collective)."""
-        with contextlib.suppress(Exception):
-            self._file.close()
-        if self._comm.rank == 0:
-            shutil.rmtree(self._tmp, ignore_errors=True)
+    def abort(self, collective: bool = True) -> None:
+        """Remove the temporary directory, on every rank that calls this.
+
+        ``collective``: close the files first (every rank must call); an interrupted run passes False, as the
+        other ranks may have stopped (closing a parallel HDF5 file waits for them).
+        """
+        if collective:
+            with contextlib.suppress(Exception):
+                self._file.close()
+        shutil.rmtree(self._tmp, ignore_errors=True)
+        discard_temporary(self._tmp)
 
 
 def picture_step(u, out_dir: Path, scene: Scene, label: str) -> None:
     """``<label>.png``: the deformed shape at the end of a step (collective; rank 0 writes)."""
     from fenicsfoam.plotting import plot_displacement
-    plot_displacement(u, out_dir / f"{label}.png", title=f"{scene.name}: {label}")
+    plot_displacement(u, output_path(out_dir, f"{label}.png"), title=f"{scene.name}: {label}")
 
 
 def picture_orientation(orientation, out_dir: Path, scene: Scene) -> None:
