@@ -28,72 +28,148 @@ Examples
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from foambase.cli import Command, main_single
+from foambase.cli import Command, main_single, nonempty_path
+from foambase.errors import InputError
 
-__all__ = ["HOMOGENIZE", "TABLE", "build_parser", "main"]
+if TYPE_CHECKING:
+    import numpy as np
+
+__all__ = ["HOMOGENIZE", "HOMOGENIZE_THREADS", "HOMOGENIZE_TOL", "TABLE", "build_parser", "format_constants", "main"]
+
+logger = logging.getLogger(__name__)
 
 
 # --------------------------------------------------------------------------------------------------
 # homogenize
 # --------------------------------------------------------------------------------------------------
+#: Defaults of ``homogenize``: tolerances below 1e-4 change the constants by less than the foam's seed-to-seed
+#: scatter (docs/homogenization.md), and one thread is the considerate default on a shared machine.
+HOMOGENIZE_TOL = 1e-4
+HOMOGENIZE_THREADS = 1
+
+
 def _homogenize_arguments(p: argparse.ArgumentParser) -> None:
     from homogenization.fft import DISCRETIZATIONS, SCHEMES
 
     source = p.add_mutually_exclusive_group(required=True)
     source.add_argument("--density", type=float, help="foam: relative density (solid fraction) in (0, 1)")
-    source.add_argument("--image", type=Path, help=".npy phase image (N1, N2, N3): 0 = void, 1 (or True) = solid")
+    source.add_argument("--image", type=nonempty_path,
+                        help=".npy phase image (N1, N2, N3): 0 = void, 1 (or True) = solid")
     foam = p.add_argument_group("foam (with --density)")
     foam.add_argument("--gamma", type=float, default=1.0, help="degree of anisotropy in (0, 1]; 1 = isotropic")
-    foam.add_argument("--cells", type=int, default=20, help="number of Voronoi cells")
-    foam.add_argument("--seed", type=int, default=0, help="random seed")
-    foam.add_argument("--resolution", type=int, default=64, help="voxels per side N")
+    foam.add_argument("--cells", type=int, default=20, help="number of Voronoi cells (>= 2)")
+    foam.add_argument("--seed", type=int, default=0, help="random seed (>= 0)")
+    foam.add_argument("--resolution", type=int, default=64, help="voxels per side N (>= 8)")
+    foam.add_argument("--stl", type=nonempty_path, default=None,
+                      help="also write the foam's surface (solid ∩ unit cube) as a binary STL, at --resolution")
     mat = p.add_argument_group("solid material")
     mat.add_argument("--E-solid", dest="E_solid", type=float, default=1.0, help="Young's modulus of the solid")
     mat.add_argument("--nu-solid", dest="nu_solid", type=float, default=0.3, help="Poisson's ratio of the solid")
     sol = p.add_argument_group("solver")
     sol.add_argument("--scheme", choices=SCHEMES, default="cg")
     sol.add_argument("--discretization", choices=DISCRETIZATIONS, default="rotated")
-    sol.add_argument("--tol", type=float, default=1e-6, help="relative equilibrium residual ||G[σ]||/||G[C:E]||")
+    sol.add_argument("--tol", type=float, default=HOMOGENIZE_TOL,
+                     help="relative equilibrium residual ||G[σ]||/||G[C:E]||")
     sol.add_argument("--maxiter", type=int, default=None, help="iterations per load case (default: solver's)")
-    sol.add_argument("--threads", type=int, default=None, help="FFTW/kernel threads (default: available CPUs)")
-    p.add_argument("--out", type=Path, default=None, help="JSON result file (written atomically)")
+    sol.add_argument("--threads", type=int, default=HOMOGENIZE_THREADS,
+                     help="FFTW/kernel threads (more than the CPUs available: a warning)")
+    p.add_argument("--out", type=nonempty_path, default=None, help="JSON result file (written atomically)")
+
+
+def _warn_threads(threads: int | None, per: int = 1) -> None:
+    """A warning when ``threads`` (per rank, ``per`` ranks) exceed the CPUs this process may use."""
+    from foambase.threads import cpu_count
+
+    if threads is not None and threads * per > cpu_count():
+        logger.warning("--threads %d%s is more than the %d CPU(s) available: the threads will compete for them "
+                       "(slower, not faster)", threads, f" × {per} ranks" if per > 1 else "", cpu_count())
+
+
+def _read_image(path: Path) -> np.ndarray:
+    """The 0/1 phase image of ``--image``, checked; :class:`InputError` naming the argument."""
+    import numpy as np
+
+    if not path.is_file():
+        raise InputError(f"--image {path}: no such file")
+    try:
+        image = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError) as exc:
+        raise InputError(f"--image {path}: cannot read a .npy array ({exc})") from exc
+    if not isinstance(image, np.ndarray):  # an .npz archive
+        image.close()
+        raise InputError(f"--image {path}: an .npz archive, not an .npy array; save one array with numpy.save")
+    if image.ndim != 3 or image.size == 0:
+        raise InputError(f"--image {path}: expected a non-empty 3-D array (N1, N2, N3), got shape {image.shape}")
+    if not (image.dtype == bool or (np.issubdtype(image.dtype, np.integer) and np.isin(image, (0, 1)).all())):
+        raise InputError(f"--image {path}: expected bool or 0/1 integer phases (0 = void, 1 = solid), "
+                         f"got dtype {image.dtype} with values {np.unique(image)[:5].tolist()}")
+    if not image.any():
+        raise InputError(f"--image {path}: every voxel is void (0): there is no solid to homogenize")
+    return image.astype(np.int8)
 
 
 def _homogenize_check(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
-    """Usage errors before any work (exit status 2); reads the image (``args.phases``) when one is given."""
-    import numpy as np
+    """Every argument and output before any work (exit status 2, naming the argument); reads ``--image``."""
+    import math
+
+    from foambase.files import check_output_file
+    from homogenization.tensors import isotropic_voigt
 
     def need(ok: bool, message: str):
         if not ok:
-            parser.error(message)
+            raise InputError(message)
     if args.density is not None:
-        need(0.0 < args.density < 1.0, f"--density must be in (0, 1), got {args.density}")
-        need(0.0 < args.gamma <= 1.0, f"--gamma must be in (0, 1], got {args.gamma}")
-        need(args.cells >= 1, f"--cells must be >= 1, got {args.cells}")
-        need(args.resolution >= 2, f"--resolution must be >= 2, got {args.resolution}")
+        need(math.isfinite(args.density) and 0.0 < args.density < 1.0,
+             f"--density must be in (0, 1), got {args.density}")
+        need(math.isfinite(args.gamma) and 0.0 < args.gamma <= 1.0, f"--gamma must be in (0, 1], got {args.gamma}")
+        need(args.cells >= 2, f"--cells must be an integer >= 2, got {args.cells}")
+        need(args.seed >= 0, f"--seed must be an integer >= 0, got {args.seed}")
+        need(args.resolution >= 8, f"--resolution must be an integer >= 8, got {args.resolution}")
     else:
-        need(args.image.is_file(), f"--image {args.image}: no such file")
-    need(np.isfinite(args.E_solid) and args.E_solid > 0, f"--E-solid must be > 0, got {args.E_solid}")
-    need(-1.0 < args.nu_solid < 0.5, f"--nu-solid must be in (-1, 0.5), got {args.nu_solid}")
-    need(0.0 < args.tol < 1.0, f"--tol must be in (0, 1), got {args.tol}")
+        need(args.stl is None, "--stl writes a foam's surface: it needs --density (not --image)")
+    need(math.isfinite(args.E_solid) and args.E_solid > 0, f"--E-solid must be > 0 and finite, got {args.E_solid}")
+    need(math.isfinite(args.nu_solid) and -1.0 < args.nu_solid < 0.5,
+         f"--nu-solid must be in (-1, 0.5), got {args.nu_solid}")
+    import numpy as np
+    with np.errstate(over="ignore", under="ignore", invalid="ignore"):  # the solver works with squared norms
+        stiffness = isotropic_voigt(args.E_solid, args.nu_solid)
+        squared = float(np.sum(stiffness**2))
+    need(math.isfinite(squared) and squared > np.finfo(float).tiny,
+         f"--E-solid {args.E_solid:g}: the solver's squared norms of the solid's stiffness "
+         f"{'overflow' if not math.isfinite(squared) else 'underflow'} double precision (valid: about 1e-150 to "
+         "1e150); give the modulus in other units (the normalised constants, C / E_solid, do not depend on them)")
+    need(math.isfinite(args.tol) and 0.0 < args.tol < 1.0, f"--tol must be in (0, 1), got {args.tol}")
     need(args.maxiter is None or args.maxiter >= 1, f"--maxiter must be >= 1, got {args.maxiter}")
-    need(args.threads is None or args.threads >= 1, f"--threads must be >= 1, got {args.threads}")
+    need(args.threads >= 1, f"--threads must be >= 1, got {args.threads}")
+    _warn_threads(args.threads)
     if args.out is not None:
-        need(args.out.parent.is_dir(), f"--out {args.out}: directory {args.out.parent} does not exist")
-    args.phases = None
-    if args.image is not None:
-        try:
-            image = np.load(args.image, allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            parser.error(f"--image {args.image}: cannot read a .npy array ({exc})")
-        need(image.ndim == 3, f"--image {args.image}: expected a 3-D array, got shape {image.shape}")
-        need(image.dtype == bool or (np.issubdtype(image.dtype, np.integer) and np.isin(image, (0, 1)).all()),
-             f"--image {args.image}: expected bool or 0/1 integer phases (0 = void, 1 = solid), "
-             f"got dtype {image.dtype} with values {np.unique(image)[:5].tolist()}")
-        args.phases = image.astype(np.int8)
+        check_output_file(args.out, "--out")
+    if args.stl is not None:
+        check_output_file(args.stl, "--stl")
+        need(args.out is None or args.stl.resolve() != args.out.resolve(), "--stl and --out name the same file")
+    args.phases = None if args.image is None else _read_image(args.image)
+
+
+def _build_foam(args: argparse.Namespace):
+    """The ``VoronoiFoam`` of the arguments; a foam the library refuses is an :class:`InputError` naming them."""
+    from scipy.spatial import QhullError
+
+    from meshes.foam import VoronoiFoam
+
+    given = f"--density {args.density:g} --gamma {args.gamma:g} --cells {args.cells} --seed {args.seed}"
+    try:
+        return VoronoiFoam(n_cells=args.cells, density=args.density, gamma=args.gamma, seed=args.seed)
+    except InputError as exc:
+        raise InputError(f"{given}: {exc}") from exc
+    except QhullError as exc:  # a degenerate diagram: extremely flat cells
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise InputError(f"{given}: the periodic Voronoi diagram of these seeds cannot be computed ({first}); "
+                         f"flat cells need about --cells >= 1/gamma, or a larger --gamma") from exc
 
 
 def _versions() -> dict[str, str]:
@@ -109,8 +185,23 @@ def _versions() -> dict[str, str]:
             "python": sys.version.split()[0]}
 
 
+def format_constants(summary: dict) -> str:
+    """The engineering constants and the TI fit of a homogenization summary, as printed by ``homogenize``."""
+    e = summary["engineering_constants"]
+    ti = summary["ti_fit"]
+    iso = summary["isotropic_fit"]
+    def row(values: dict, keys: tuple[str, ...], fmt: str) -> str:
+        return ", ".join(f"{k} = {values[k]:{fmt}}" for k in keys)
+    lines = [f"engineering constants: {row(e, ('E1', 'E2', 'E3', 'G23', 'G13', 'G12'), '.5g')}",
+             f"                       {row(e, ('nu12', 'nu13', 'nu23', 'nu21', 'nu31', 'nu32'), '.4f')}",
+             f"TI fit (l = x):        {row(ti, ('E_t', 'E_l', 'nu_t', 'nu_tl', 'G_l'), '.5g')}; "
+             f"error {ti['error']:.3g}",
+             f"isotropic fit:         E = {iso['E']:.5g}, nu = {iso['nu']:.4f}; error {iso['error']:.3g}"]
+    return "\n".join(lines)
+
+
 def _homogenize(args: argparse.Namespace) -> int:
-    """Homogenize the foam or image; print C and the TI fit; write the JSON."""
+    """Homogenize the foam or image; print C, the engineering constants and the TI fit; write the JSON (and STL)."""
     import numpy as np
     from tqdm import tqdm
 
@@ -119,11 +210,13 @@ def _homogenize(args: argparse.Namespace) -> int:
     from homogenization.fft import homogenize_fft
     from homogenization.tensors import InadmissibleMaterialError, isotropic_voigt
 
-    phases = args.phases
+    phases, foam = args.phases, None
     if phases is None:
-        from meshes.foam import VoronoiFoam
-        foam = VoronoiFoam(n_cells=args.cells, density=args.density, gamma=args.gamma, seed=args.seed)
+        foam = _build_foam(args)
         phases = foam.voxelize(args.resolution).astype(np.int8)
+        if not phases.any():
+            raise InputError(f"--resolution {args.resolution}: no voxel centre lies in the struts (radius "
+                             f"{foam.radius:.3g}); use a finer --resolution")
     materials = [np.zeros((6, 6)), isotropic_voigt(args.E_solid, args.nu_solid)]
     with tqdm(total=6, unit="case", desc="homogenize", disable=None) as bar:
         def progress(case, iteration, residual):
@@ -135,18 +228,19 @@ def _homogenize(args: argparse.Namespace) -> int:
         bar.update(6 - bar.n)
     try:
         summary = result.to_dict()
-    except InadmissibleMaterialError as exc:  # e.g. a solid that does not percolate: C is singular
+    except (InadmissibleMaterialError, np.linalg.LinAlgError) as exc:  # e.g. a solid that does not percolate
         raise ComputationError(f"the homogenized stiffness is not positive definite ({exc}); "
                                f"C = {np.array2string(result.C, precision=4)}") from exc
-    unused = ("image",) if args.image is None else ("density", "gamma", "cells", "seed", "resolution")
+    unused = ("image",) if args.image is None else ("density", "gamma", "cells", "seed", "resolution", "stl")
     inputs = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()
               if k in _HOMOGENIZE_INPUTS and k not in unused}
     summary.update(inputs=inputs, solid_fraction=float(phases.mean()), software=_versions())
-    ti = summary["ti_fit"]
     print(f"C (Voigt) =\n{np.array2string(result.C, precision=5, suppress_small=True)}")
-    print("TI fit (l = x): " + ", ".join(f"{k} = {ti[k]:.5g}" for k in ("E_t", "E_l", "nu_t", "nu_tl", "G_l"))
-          + f"; error {ti['error']:.3g}")
+    print(format_constants(summary))
     print(f"iterations {result.iterations}, wall {result.wall_s:.2f} s")
+    if args.stl is not None:
+        foam.to_stl(args.stl, args.resolution)
+        print(f"written {args.stl}")
     if args.out is not None:
         write_json_atomic(args.out, summary, indent=1)
         print(f"written {args.out}")
@@ -164,8 +258,8 @@ _TABLE_DESCRIPTION = (
     "foam_table_samples.csv, foam_table.csv (mean and std over seeds) and foam_table_provenance.json into --out.")
 
 #: The inputs recorded in the JSON: the arguments of the command (not the dispatcher's).
-_HOMOGENIZE_INPUTS = ("density", "image", "gamma", "cells", "seed", "resolution", "E_solid", "nu_solid", "scheme",
-                      "discretization", "tol", "maxiter", "threads", "out")
+_HOMOGENIZE_INPUTS = ("density", "image", "gamma", "cells", "seed", "resolution", "stl", "E_solid", "nu_solid",
+                      "scheme", "discretization", "tol", "maxiter", "threads", "out")
 
 HOMOGENIZE = Command("homogenize", "FFT homogenization of a foam (--density) or a phase image (--image) to JSON",
                      _homogenize_arguments, _homogenize, description=_HOMOGENIZE_DESCRIPTION,
@@ -178,19 +272,21 @@ HOMOGENIZE = Command("homogenize", "FFT homogenization of a foam (--density) or 
 def _table_arguments(p: argparse.ArgumentParser) -> None:
     from homogenization import tables
 
-    p.add_argument("--out", type=Path, required=True, help="directory of the three table files")
-    p.add_argument("--cache", type=Path, default=None, help="one JSON per finished sample; None: OUT/cache")
+    p.add_argument("--out", type=nonempty_path, required=True, help="directory of the three table files")
+    p.add_argument("--cache", type=nonempty_path, default=None, help="one JSON per finished sample; None: OUT/cache")
     p.add_argument("--densities", type=float, nargs="+", default=tables.DENSITIES, help="relative densities")
     p.add_argument("--gammas", type=float, nargs="+", default=tables.GAMMAS, help="degrees of anisotropy γ")
     p.add_argument("--seeds", type=int, nargs="+", default=tables.SEEDS, help="random seeds per (density, γ)")
     p.add_argument("--cells", type=int, default=tables.SweepSettings.n_cells, help="Voronoi cells per RVE")
     p.add_argument("--resolution", type=int, default=tables.SweepSettings.resolution, help="voxels per side N")
     p.add_argument("--tol", type=float, default=tables.SweepSettings.tol, help="FFT (CG) tolerance")
-    p.add_argument("--threads", type=int, default=None, help="FFTW threads per rank; None: CPUs / ranks")
+    p.add_argument("--threads", type=int, default=None,
+                   help="FFTW threads per rank; None: CPUs / ranks (more than the CPUs: a warning)")
 
 
 def _table_check(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
-    """Usage errors before any work (exit status 2); builds ``args.settings``."""
+    """Every argument and output before any work (exit status 2, naming the argument); builds ``args.settings``."""
+    from foambase.files import check_output_dir
     from homogenization import tables
 
     bad = [d for d in args.densities if not 0.0 < d < 1.0]
@@ -203,10 +299,15 @@ def _table_check(parser: argparse.ArgumentParser, args: argparse.Namespace) -> N
         parser.error(f"--seeds must be >= 0, got {args.seeds}")
     if args.threads is not None and args.threads < 1:
         parser.error(f"--threads must be >= 1, got {args.threads}")
-    try:
-        args.settings = tables.SweepSettings(n_cells=args.cells, resolution=args.resolution, tol=args.tol)
-    except ValueError as exc:
-        parser.error(str(exc))
+    for option, key in (("--cells", "n_cells"), ("--resolution", "resolution"), ("--tol", "tol")):
+        try:  # one at a time, so that the message names the argument
+            tables.SweepSettings(**{key: getattr(args, option[2:])})
+        except ValueError as exc:
+            parser.error(f"{option}: {exc}")
+    args.settings = tables.SweepSettings(n_cells=args.cells, resolution=args.resolution, tol=args.tol)
+    check_output_dir(args.out, "--out")
+    if args.cache is not None:
+        check_output_dir(args.cache, "--cache")
 
 
 def _table(args: argparse.Namespace) -> int:
@@ -219,6 +320,8 @@ def _table(args: argparse.Namespace) -> int:
     from homogenization import tables
 
     comm = MPI.COMM_WORLD
+    if comm.rank == 0:
+        _warn_threads(args.threads, comm.size)
     settings = args.settings
     start = time.perf_counter()
     rows = tables.run_sweep(tables.grid(args.densities, args.gammas, args.seeds), settings,
