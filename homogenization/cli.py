@@ -4,8 +4,11 @@
 homogenization of a stochastic Voronoi foam or of a phase image, written as JSON. The solid is isotropic
 (``--E-solid``, ``--nu-solid``; default 1 and 0.3, normalised like the paper's Fig. 4), the void has zero stiffness.
 The JSON holds C (Voigt), engineering constants, the TI fit with l axis = x (the foam's distinct axis) and its error,
-the isotropic fit, iterations and residuals per load case, timings, every input and the software versions. It is
-written to a temporary file beside ``--out`` and renamed, so it is never half-written.
+the isotropic fit, iterations and residuals per load case, timings, every input and the software versions; the same
+constants and fits are printed. It is written to a temporary file beside ``--out`` and renamed, so it is never
+half-written; ``--stl`` also writes the foam's surface. Defaults: ``--tol 1e-4`` (tighter tolerances move the
+constants by less than the resolution error), ``--threads 1`` (considerate on a shared machine; more threads than
+CPUs is a warning). Every argument and output location is checked before any work, naming the argument.
 
 ``fenicsfoam table`` (:data:`TABLE`) homogenizes every (density, γ, seed) foam of a sweep as the shipped table was
 made (:func:`homogenization.tables.run_sweep`: each finished sample is cached, so an interrupted sweep resumes; under
