@@ -71,12 +71,13 @@ def _run(args: argparse.Namespace) -> int:
 
     from fenicsfoam.scene import run_scene
     from fenicsfoam.scene.outputs import RunFolder
-    from foambase.petsc_options import unused_command_line_options
+    from foambase.petsc_options import option_names, unused_command_line_options
 
     comm = MPI.COMM_WORLD
     RunFolder(args.out, comm, what="--out").check()
+    db = PETSc.Options()
     if args.passthrough:
-        PETSc.Options().insertString(" ".join(args.passthrough))
+        db.insertString(" ".join(args.passthrough))
     try:
         result = run_scene(args.scene, args.out, comm=comm)
     finally:
@@ -84,6 +85,8 @@ def _run(args: argparse.Namespace) -> int:
         if unused:
             logger.warning("PETSc options after '--' that nothing used: %s (misspelt, or not options of this "
                            "solver; the scene's solver options take the prefix -%s)", " ".join(unused), "scene_")
+        for name in option_names(args.passthrough):  # this run's: a later run in the process starts clean
+            db.delValue(name.lstrip("-"))
     if comm.rank == 0:
         print(result.table())
         print(f"outputs in {args.out}")

@@ -295,6 +295,8 @@ def test_a_used_setup_option_passes_and_unknown_command_line_options_warn(work, 
                              "-scene_snes_rtoll", "1e-8", "-scene_snes_rtol", "1e-9", "-snes_max_it", "3"], capsys)
     assert status == 0, err
     assert "WARNING" in err and "-scene_snes_rtoll -snes_max_it" in err and "-scene_snes_rtol " not in err
+    from petsc4py import PETSc
+    assert not [k for k in PETSc.Options().getAll() if "snes" in k]  # the run's options are gone with it
 
 
 # --------------------------------------------------------------------------------------------------
