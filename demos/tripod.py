@@ -19,8 +19,9 @@
 #     −Div P(F) = ρ g   in Ω,      u = R(θ, t_i)(X − p_i) + p_i − X on arm end i,      P N = 0 elsewhere,
 #
 # P from the corotational energy ψ = ½ ε_c : C(a) : ε_c (see `demos/beams.py`); the silicone plate is
-# isotropic, case A has TI arms (l along each arm) around an isotropic centre, case B is TI everywhere with
-# its l axis on a 45° counter-clockwise spiral.
+# isotropic, case A has TI arms (l axis 30° counter-clockwise from each arm, seen from above: a chiral layout,
+# see the scene file) around an isotropic centre, case B is TI everywhere with its l axis on a 45°
+# counter-clockwise spiral.
 #
 # *Weak form.* Find u in the affine space of the prescribed arm-end motions such that
 # ∫_Ω P(F(u)) : ∇v dX = ∫_Ω ρ g · v dX for every v vanishing on the arm ends.
@@ -39,10 +40,10 @@
 #
 # *What holds today* (asserted below, against the real robot): the rise of the centre of cases A and B is
 # within `RATIO_BAND` = [0.7, 1.3] of the real one (measured 0.80–1.22); case B's twist magnitude is within the
-# same band (measured 0.83–1.01). Case A does **not** twist in this model (its l axes lie along the arms, so the
-# plate stays mirror symmetric about every arm), whereas the real robot turns by 4° and 20°: the check asserts
-# the symmetric answer and says so; the paper's directions must be oblique to its arms, in a frame it does not
-# give.
+# same band (measured 0.83–1.01). Case A twists, but far less than the real robot (about 1.6° and 4.8° against
+# 4° and 20°): the check asserts only that it twists by more than a degree at the top; the reasons for the gap
+# (the real robot's pre-bent servo kinematics, which in-plane axis the paper's "direction" is, the foam's
+# anisotropy, P1 tetrahedra) are measured in the docs' validation pages.
 #
 # Run: `python demos/tripod.py --out out/tripod [--ci]`, also under `mpirun -n 2`.
 
@@ -57,7 +58,7 @@ from mpi4py import MPI
 from fenicsfoam.scene import run_scene
 
 CASES = ("tripod_silicone", "tripod_case_a", "tripod_case_b")
-#: Twist bound of the mirror-symmetric plates (silicone, case A), relative to case B's torsion at the top: zero
+#: Twist bound of the mirror-symmetric silicone plate, relative to case B's torsion at the top: zero
 #: by symmetry, and the mesh is D3-invariant (``meshes.tripod``), so only round-off and the solver tolerance
 #: remain (measured ≈ 1e-15 relative).
 SYMMETRY_RTOL = 1e-9
@@ -109,8 +110,10 @@ def table(results: dict) -> str:
 # %% [markdown]
 # ## Checks
 # - every plate rises from rest to middle to top (the horns lift the arm ends);
-# - the silicone plate and case A do not twist (mirror symmetry of the plate, its l field and its mesh):
+# - the silicone plate does not twist (mirror symmetry of the plate and of its mesh):
 #   |twist| < 1e-9 × case B's torsion at the top;
+# - the two chiral foam plates (case A: l axes 30° from the arms; case B: the spiral) twist by more than a degree
+#   at the top;
 # - cases A and B: the rise of the centre at middle and top is within `RATIO_BAND` of the real robot's;
 #   case B: the magnitude of the twist at middle and top is within `RATIO_BAND` of the real robot's.
 
@@ -125,11 +128,14 @@ def check(results: dict) -> list[str]:
             failures.append(f"{name}: centre heights {heights} m do not rise from rest to middle to top")
     twist = abs(changes(results["tripod_case_b"])["angle"][1])
     bound = SYMMETRY_RTOL * twist
-    for name in ("tripod_silicone", "tripod_case_a"):
-        angles = results[name].probe("center_rotation")
-        if not max(abs(v) for v in angles.values()) < bound:
-            failures.append(f"{name} twists: {angles} deg (symmetry bound {bound:.3g} deg = {SYMMETRY_RTOL:g} × "
-                            "case B's torsion at top)")
+    angles = results["tripod_silicone"].probe("center_rotation")
+    if not max(abs(v) for v in angles.values()) < bound:
+        failures.append(f"tripod_silicone twists: {angles} deg (symmetry bound {bound:.3g} deg = "
+                        f"{SYMMETRY_RTOL:g} × case B's torsion at top)")
+    for name in ("tripod_case_a", "tripod_case_b"):
+        torsion = changes(results[name])["angle"][1]
+        if not abs(torsion) > 1.0:
+            failures.append(f"{name}: torsion at top {torsion:.3g} deg, expected more than 1 deg")
     for name in ("tripod_case_a", "tripod_case_b"):
         ours = changes(results[name])
         real = {q: deltas(TABLE_I[name][q][1]) for q in ("height", "angle")}

@@ -15,7 +15,7 @@ tag                    region                   use
 =====================  =======================  ======================================================
 :data:`RING` = 1       hole_radius ≤ r < ring   probes (centre height, rotation); part of the centre
 :data:`CENTRE` = 2     ring ≤ r < centre        rest of the central region (case A: isotropic 15 % foam)
-:data:`ARM` 11–13      centre ≤ r < arm_end     arm i (case A: TI 30 % foam with its l axis along e_i)
+:data:`ARM` 11–13      centre ≤ r < arm_end     arm i (case A: TI 30 % foam, l axis 30° from e_i)
 :data:`ARM_END` 21–23  r ≥ arm_end              the part of arm i carried rigidly by servo i's horn
 =====================  =======================  ======================================================
 
