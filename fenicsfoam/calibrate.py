@@ -1,0 +1,321 @@
+"""Calibrate the printed solid's modulus ``E_solid`` on one measurement: a scalar root find over scene runs.
+
+The datasheet modulus of a filament is not the modulus of its printed strands. :func:`calibrate_E_solid` finds
+the one scalar ``E_solid``, shared by every foam region of a scene, for which a probe at a load step matches a
+measured value (e.g. the Fig. 6 isotropic beam's tip deflection, −48 mm). Every other quantity is then a
+prediction. The result is written as ``calibration.json``::
+
+    {"E_solid": 3.1e7, "probe": "tip_deflection", "target": -0.048, "achieved": -0.048, "runs": 3, ...}
+
+and a scene takes it with ``E_solid = {calibration = "calibration.json"}`` in a foam region (path relative to the
+scene file), read by :func:`read_calibration`.
+
+Method. A foam's moduli are proportional to ``E_solid`` (its mass is not), so with the linear model the
+displacement is exactly ``u = u_D + u_f / E_solid`` (``u_D``: the response to prescribed motions, ``u_f``: to
+gravity at unit modulus), and a probe that is affine in ``u`` (``tip_deflection``, ``center_height``) is
+``p = a + b / E_solid``. Two runs give ``a`` and ``b``, hence ``E_solid = b / (target − a)`` and the reachable
+range (``a`` excluded, on the side of ``b``), and a third run checks it. That affine model is also the initial
+guess otherwise (nonlinear models, ``center_rotation``): the root is then bracketed from the guess by steps of a
+factor 2 in ``E_solid`` and found by Brent's method on ``log E_solid`` (``scipy.optimize.brentq``) to a relative
+tolerance ``rtol`` of ``E_solid``. Runs are memoised, so a value is never computed twice.
+
+Errors (:class:`CalibrationError`, raised before any run where possible): an unknown probe or step, a
+non-finite target, a scene without foam regions or whose foam regions disagree on ``E_solid``, a probe that does
+not depend on ``E_solid``, a target outside the reachable range (wrong sign, or beyond the asymptote of an
+infinitely stiff solid), a target not bracketed within ``E_range`` or needing a solid so soft that the scene no
+longer converges.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import logging
+import math
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "AFFINE_PROBES",
+    "Calibration",
+    "CalibrationError",
+    "calibrate_E_solid",
+    "read_calibration",
+    "scene_with_E_solid",
+    "write_calibration",
+]
+
+logger = logging.getLogger(__name__)
+
+#: Probes that are affine functions of the displacement (integrals of u): exact in two runs with the linear model.
+AFFINE_PROBES = frozenset({"tip_deflection", "center_height"})
+#: Name of the file :func:`calibrate_E_solid` writes in ``out_dir``.
+CALIBRATION_JSON = "calibration.json"
+
+
+class CalibrationError(ValueError):
+    """A calibration cannot be done: bad input, or a target no ``E_solid`` reaches; the message says which value."""
+
+    exit_code = 2
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """The calibrated modulus and how it was found (``to_dict()`` is ``calibration.json``)."""
+
+    E_solid: float                    #: Pa
+    probe: str
+    step: str
+    target: float                     #: the measured value (SI, angles in degrees)
+    achieved: float                   #: the probe at ``E_solid``
+    runs: int                         #: scene runs done
+    relative_to: str | None = None    #: the probe is a change from this step, if given
+    method: str = ""
+    scene: str = ""
+    history: tuple[tuple[float, float], ...] = field(default_factory=tuple)  #: (E_solid, probe) of every run
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict: ``E_solid``, ``probe``, ``target``, ``achieved``, ``runs`` and the details."""
+        return {"E_solid": self.E_solid, "probe": self.probe, "target": self.target, "achieved": self.achieved,
+                "runs": self.runs, "step": self.step, "relative_to": self.relative_to, "method": self.method,
+                "scene": self.scene, "history": [list(h) for h in self.history]}
+
+
+def _load_raw(source) -> tuple[dict[str, Any], Path | None]:
+    """The scene as a dict and the directory relative paths refer to."""
+    if isinstance(source, Mapping):
+        return copy.deepcopy(dict(source)), None
+    import tomllib
+
+    from fenicsfoam.scene import SceneError
+    path = Path(source)
+    try:
+        with path.open("rb") as f:
+            return tomllib.load(f), path.parent
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise SceneError(f"cannot read scene {path}: {exc}") from exc
+
+
+def scene_with_E_solid(data: Mapping[str, Any], E_solid: float) -> dict[str, Any]:
+    """A copy of a scene dict with ``E_solid`` set in every foam region (the only change)."""
+    out = copy.deepcopy(dict(data))
+    for region in out.get("regions", {}).values():
+        if isinstance(region, dict) and region.get("material") == "foam":
+            region["E_solid"] = float(E_solid)
+    return out
+
+
+def _validate(data: dict[str, Any], base: Path | None, probe: str, step: str, relative_to: str | None,
+              target: float) -> tuple[Any, float]:
+    """Check the request against the scene (before any run); returns the parsed scene and the initial E_solid."""
+    from fenicsfoam.scene import PROBES, parse_scene
+
+    if probe not in PROBES:
+        raise CalibrationError(f"probe {probe!r} is unknown; valid: {', '.join(PROBES)}")
+    if isinstance(target, bool) or not isinstance(target, int | float) or not math.isfinite(target):
+        raise CalibrationError(f"target {target!r} must be a finite number (SI units, angles in degrees)")
+    probes = list(data.get("probes", []))
+    if probe not in probes:
+        data["probes"] = probes + [probe]
+    data["outputs"] = {"xdmf": False, "png": False}
+    scene = parse_scene(data, base)
+    labels = [s.label for s in scene.steps]
+    for name, label in (("step", step), ("relative_to", relative_to)):
+        if label is not None and label not in labels:
+            raise CalibrationError(f"{name} {label!r} is not a step of scene {scene.name!r}; its steps: {labels}")
+    if relative_to == step:
+        raise CalibrationError(f"relative_to {relative_to!r} is the calibrated step itself: the change is always 0")
+    foams = {r.name: r.parameters["E_solid"] for r in scene.regions if r.material == "foam"}
+    if not foams:
+        raise CalibrationError(f"scene {scene.name!r} has no foam region: E_solid calibrates the foams' solid; "
+                               "its regions are " + ", ".join(f"{r.name} ({r.material})" for r in scene.regions))
+    if len(set(foams.values())) > 1:
+        raise CalibrationError(f"the foam regions of scene {scene.name!r} have different E_solid ({foams}); a "
+                               "calibration finds one E_solid shared by every foam region: make them equal first")
+    return scene, next(iter(foams.values()))
+
+
+class _Runs:
+    """Memoised probe values ``p(E_solid)`` from scene runs."""
+
+    def __init__(self, data, base, probe, step, relative_to, comm):
+        self.data, self.base, self.probe, self.step, self.relative_to, self.comm = (data, base, probe, step,
+                                                                                     relative_to, comm)
+        self.values: dict[float, float] = {}
+
+    def __call__(self, E: float) -> float:
+        from fenicsfoam.scene import parse_scene, run_scene
+        if E not in self.values:
+            result = run_scene(parse_scene(scene_with_E_solid(self.data, E), self.base), comm=self.comm)
+            values = result.probe(self.probe, relative_to=self.relative_to)
+            self.values[E] = float(values[self.step])
+            logger.info("calibration run %d: E_solid = %.10g Pa -> %s = %.10g", len(self.values), E, self.probe,
+                        self.values[E])
+        return self.values[E]
+
+    @property
+    def history(self) -> tuple[tuple[float, float], ...]:
+        return tuple(self.values.items())
+
+
+def calibrate_E_solid(source, probe: str, step: str, target: float, *, relative_to: str | None = None,
+                      rtol: float = 1e-10, E_range: tuple[float, float] | None = None, max_runs: int = 60,
+                      out_dir: str | os.PathLike | None = None, comm=None) -> Calibration:
+    """Find the ``E_solid`` of every foam region for which ``probe`` at ``step`` equals ``target``.
+
+    Parameters
+    ----------
+    source
+        A scene file (TOML) or a dict as ``tomllib`` reads one; its foam regions must share one ``E_solid``,
+        the initial guess.
+    probe, step
+        The probe (e.g. ``"tip_deflection"``; added to the scene's probes if absent) and the label of the step.
+    target
+        The measured value, in the probe's SI unit (m, or degrees for ``center_rotation``).
+    relative_to
+        Calibrate the change of the probe from this step (e.g. ``"rest"`` for Table I's changes).
+    rtol
+        Relative tolerance on ``E_solid`` of the root find.
+    E_range
+        ``(lowest, highest)`` E_solid searched (Pa); default 1e-3 to 1e3 times the initial value.
+    max_runs
+        Most scene runs allowed.
+    out_dir
+        If given, ``out_dir/calibration.json`` is written (atomically, on rank 0).
+    comm
+        MPI communicator of the runs (default ``MPI.COMM_WORLD``).
+
+    Raises
+    ------
+    CalibrationError
+        Bad input (before any run) or an unreachable target, naming the value.
+    fenicsfoam.scene.SceneError
+        The scene itself is invalid.
+
+    """
+    from mpi4py import MPI
+    from scipy.optimize import brentq
+
+    from fenicsfoam.solver import ConvergenceError
+    comm = MPI.COMM_WORLD if comm is None else comm
+    data, base = _load_raw(source)
+    scene, E0 = _validate(data, base, probe, step, relative_to, target)
+    target = float(target)
+    lo, hi = (E0 * 1e-3, E0 * 1e3) if E_range is None else (float(E_range[0]), float(E_range[1]))
+    if not (0 < lo < hi and math.isfinite(hi)):
+        raise CalibrationError(f"E_range {E_range!r} must be two increasing positive moduli (Pa)")
+    runs = _Runs(data, base, probe, step, relative_to, comm)
+    what = f"{probe} at step {step!r}" + (f" relative to {relative_to!r}" if relative_to else "")
+
+    def value(E: float) -> float:
+        if len(runs.values) >= max_runs and E not in runs.values:
+            raise CalibrationError(f"calibration of {what} to {target!r} did not converge in {max_runs} runs; "
+                                   f"runs (E_solid, value): {runs.history}")
+        try:
+            return runs(E)
+        except ConvergenceError as exc:
+            raise CalibrationError(f"target {target!r} for {what} needs E_solid near {E:.6g} Pa, where scene "
+                                   f"{scene.name!r} does not converge ({exc}); runs (E_solid, value): "
+                                   f"{runs.history}") from exc
+
+    # Two runs: the affine model p = a + b / E (exact for the linear model and affine probes).
+    E1 = 2.0 * E0
+    p0, p1 = value(E0), value(E1)
+    b = (p0 - p1) / (1.0 / E0 - 1.0 / E1)
+    a = p0 - b / E0
+    if b == 0.0 or abs(b / E0) <= 1e-12 * max(abs(p0), abs(p1)):
+        raise CalibrationError(f"{what} does not depend on E_solid ({p0!r} at {E0:.6g} Pa, {p1!r} at {E1:.6g} "
+                               f"Pa): target {target!r} cannot be reached by calibrating E_solid")
+    exact = scene.model == "linear" and probe in AFFINE_PROBES
+    if (target - a) * b <= 0.0:
+        side = "above" if b > 0 else "below"
+        message = (f"target {target!r} is not reachable: {what} is {p0:.6g} at E_solid = {E0:.6g} Pa and tends "
+                   f"to {a:.6g} for an infinitely stiff solid, so only values {side} {a:.6g} can be reached"
+                   + (" (wrong sign?)" if target * p0 < 0 else ""))
+        if exact:
+            raise CalibrationError(message)
+        logger.warning("%s (affine estimate; searching E_range anyway for this nonlinear case)", message)
+    guess = b / (target - a) if (target - a) * b > 0 else (lo if b * (target - p0) > 0 else hi)
+    guess = min(max(guess, lo), hi)
+    if exact:
+        method = "affine in 1/E_solid (linear model): two runs, then a check"
+        E = guess
+        achieved = value(E)
+        if abs(achieved - target) > 1e-8 * max(abs(target), abs(a)):
+            raise CalibrationError(f"the linear-model calibration of {what} missed: {achieved!r} at E_solid = "
+                                   f"{E!r} Pa instead of {target!r} (is the probe affine in u?)")
+    else:
+        method = "Brent's method on log E_solid from the affine guess"
+        f = {}
+
+        def residual(logE: float) -> float:
+            if logE not in f:
+                f[logE] = value(math.exp(logE)) - target
+            return f[logE]
+
+        # bracket: from the guess, step by a factor 2 towards the sign change
+        x0 = math.log(guess)
+        r0 = residual(x0)
+        if r0 == 0.0:
+            E = guess
+        else:
+            # the probe moves by b / E: decreasing E moves it along sign(b)
+            direction = -1.0 if r0 * b < 0 else 1.0  # residual < 0 with b > 0: need a larger value: softer (−)
+            x1, r1 = x0, r0
+            while r1 * r0 > 0:
+                x_next = x1 + direction * math.log(2.0)
+                if not (math.log(lo) - 1e-12 <= x_next <= math.log(hi) + 1e-12):
+                    values = [v for _, v in runs.history]
+                    raise CalibrationError(
+                        f"target {target!r} is not reachable for {what} with E_solid in [{lo:.6g}, {hi:.6g}] Pa: "
+                        f"the runs span [{min(values):.6g}, {max(values):.6g}] (runs (E_solid, value): "
+                        f"{runs.history})" + (" (wrong sign?)" if target * p0 < 0 else ""))
+                x1, r1 = x_next, residual(x_next)
+            a_, b_ = sorted((x0, x1))
+            E = math.exp(brentq(residual, a_, b_, xtol=rtol, maxiter=max_runs))
+        achieved = value(E)
+    calibration = Calibration(E_solid=float(E), probe=probe, step=step, target=target, achieved=float(achieved),
+                              runs=len(runs.values), relative_to=relative_to, method=method, scene=scene.name,
+                              history=runs.history)
+    logger.info("calibrated E_solid = %.10g Pa (%s = %.10g, target %.10g) in %d runs", calibration.E_solid, probe,
+                calibration.achieved, target, calibration.runs)
+    if out_dir is not None:
+        write_calibration(calibration, Path(out_dir) / CALIBRATION_JSON, comm=comm)
+    return calibration
+
+
+def write_calibration(calibration: Calibration, path: str | os.PathLike, comm=None) -> Path:
+    """Write ``calibration.json`` atomically (temporary file in the same directory, then ``os.replace``), rank 0."""
+    from mpi4py import MPI
+    comm = MPI.COMM_WORLD if comm is None else comm
+    path = Path(path)
+    if comm.rank == 0:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        try:
+            tmp.write_text(json.dumps(calibration.to_dict(), indent=2) + "\n")
+            os.replace(tmp, path)
+        finally:
+            if tmp.exists():
+                tmp.unlink()
+    comm.Barrier()
+    return path
+
+
+def read_calibration(path: str | os.PathLike) -> float:
+    """``E_solid`` (Pa) of a ``calibration.json``; :class:`CalibrationError` names the file and what is wrong."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except OSError as exc:
+        raise CalibrationError(f"cannot read calibration file {str(path)!r}: {exc.strerror}") from exc
+    except json.JSONDecodeError as exc:
+        raise CalibrationError(f"calibration file {str(path)!r} is not valid JSON: {exc}") from exc
+    E = data.get("E_solid") if isinstance(data, dict) else None
+    if isinstance(E, bool) or not isinstance(E, int | float) or not (math.isfinite(E) and E > 0):
+        raise CalibrationError(f"calibration file {str(path)!r}: 'E_solid' must be a positive modulus in Pa, "
+                               f"got {E!r}")
+    return float(E)

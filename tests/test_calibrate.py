@@ -1,0 +1,135 @@
+"""Calibration of E_solid: a known modulus is recovered from a synthetic target (a scene run at that modulus),
+unreachable targets and bad requests raise errors naming the value, the calibration file round-trips.
+
+The scenes are the shipped Fig. 6 isotropic foam beam and Tripod case B at coarse meshes.
+"""
+
+import json
+import math
+import tomllib
+from pathlib import Path
+
+import pytest
+from mpi4py import MPI
+
+import fenicsfoam.scene
+from fenicsfoam.calibrate import (
+    CalibrationError,
+    calibrate_E_solid,
+    read_calibration,
+    scene_with_E_solid,
+)
+from fenicsfoam.scene import run_scene
+
+SCENES = Path(__file__).resolve().parents[1] / "demos" / "scenes"
+COARSE_BEAM_H = 0.0075   # 688 tets
+E_TRUE = 7.3e6           # the modulus the synthetic targets are made with (the scenes say 12 MPa)
+
+
+def beam(model="linear"):
+    scene = tomllib.loads((SCENES / "beam_iso.toml").read_text())
+    scene["geometry"]["h"] = COARSE_BEAM_H
+    scene["fem"]["model"] = model
+    scene["outputs"] = {"xdmf": False, "png": False}
+    return scene
+
+
+def synthetic(scene, probe, step, relative_to=None):
+    """The probe of ``scene`` run with every foam's E_solid = E_TRUE: a measurement whose answer is known."""
+    result = run_scene(scene_with_E_solid(scene, E_TRUE), comm=MPI.COMM_SELF)
+    return result.probe(probe, relative_to=relative_to)[step]
+
+
+@pytest.mark.parametrize("model", ["linear", "corotational"])
+def test_recovers_a_known_E_solid_on_the_beam(model, tmp_path):
+    scene = beam(model)
+    target = synthetic(scene, "tip_deflection", "gravity")
+    cal = calibrate_E_solid(scene, "tip_deflection", "gravity", target, out_dir=tmp_path, comm=MPI.COMM_SELF)
+    assert cal.E_solid == pytest.approx(E_TRUE, rel=1e-6)
+    assert cal.achieved == pytest.approx(target, rel=1e-6)
+    if model == "linear":  # u = u_D + u_f / E exactly: two runs and a check
+        assert cal.runs == 3 and cal.method.startswith("affine")
+    else:
+        assert cal.method.startswith("Brent") and cal.runs <= 20
+    written = json.loads((tmp_path / "calibration.json").read_text())
+    assert {"E_solid", "probe", "target", "achieved", "runs"} <= set(written)
+    assert written["E_solid"] == cal.E_solid and written["runs"] == cal.runs
+    assert read_calibration(tmp_path / "calibration.json") == cal.E_solid
+
+
+@pytest.mark.slow
+def test_recovers_a_known_E_solid_from_the_tripod_torsion():
+    """A nonlinear probe (the Kabsch twist) of a nonlinear model, as a change from rest."""
+    scene = tomllib.loads((SCENES / "tripod_case_b.toml").read_text())
+    scene["geometry"]["h"] = 0.0075
+    scene["outputs"] = {"xdmf": False, "png": False}
+    target = synthetic(scene, "center_rotation", "top", relative_to="rest")
+    cal = calibrate_E_solid(scene, "center_rotation", "top", target, relative_to="rest", comm=MPI.COMM_SELF)
+    assert cal.E_solid == pytest.approx(E_TRUE, rel=1e-6)
+
+
+@pytest.mark.parametrize("model", ["linear", "corotational"])
+def test_a_target_of_the_wrong_sign_is_unreachable(model):
+    """Gravity alone bends the beam down: no modulus gives an upward tip (+10 mm)."""
+    with pytest.raises(CalibrationError, match=r"target 0\.01 is not reachable.*wrong sign"):
+        calibrate_E_solid(beam(model), "tip_deflection", "gravity", 0.01, comm=MPI.COMM_SELF)
+
+
+def test_a_target_beyond_the_searched_moduli_is_unreachable():
+    with pytest.raises(CalibrationError, match=r"target -0\.5 is not reachable .* E_solid in \[6e\+06, 2\.4e\+07\]"):
+        calibrate_E_solid(beam("corotational"), "tip_deflection", "gravity", -0.5, E_range=(6e6, 24e6),
+                          comm=MPI.COMM_SELF)
+
+
+@pytest.mark.parametrize("change, match", [
+    ({"probe": "tip_angle"}, r"probe 'tip_angle' is unknown; valid: tip_deflection"),
+    ({"step": "top"}, r"step 'top' is not a step of scene 'beam_iso'; its steps: \['gravity'\]"),
+    ({"relative_to": "gravity"}, r"relative_to 'gravity' is the calibrated step itself"),
+    ({"target": math.nan}, r"target nan must be a finite number"),
+    ({"E_range": (5e6, 1e6)}, r"E_range \(5000000\.0, 1000000\.0\) must be two increasing positive moduli"),
+])
+def test_bad_requests_fail_before_any_run(monkeypatch, change, match):
+    def no_run(*args, **kwargs):
+        raise AssertionError("a scene was run")
+
+    monkeypatch.setattr(fenicsfoam.scene, "run_scene", no_run)
+    request = {"probe": "tip_deflection", "step": "gravity", "target": -0.048, **change}
+    with pytest.raises(CalibrationError, match=match):
+        calibrate_E_solid(beam(), request.pop("probe"), request.pop("step"), request.pop("target"), **request)
+
+
+def test_a_scene_without_foam_or_with_two_moduli_is_refused():
+    scene = beam()
+    scene["regions"]["beam"] = {"tags": "beam", "material": "isotropic", "E": 3e5, "nu": 0.3, "rho": 200.0}
+    with pytest.raises(CalibrationError, match=r"scene 'beam_iso' has no foam region.*beam \(isotropic\)"):
+        calibrate_E_solid(scene, "tip_deflection", "gravity", -0.048)
+    scene = tomllib.loads((SCENES / "tripod_case_a.toml").read_text())
+    scene["regions"]["centre"]["E_solid"] = 10e6
+    with pytest.raises(CalibrationError, match=r"different E_solid \(\{'arms': 12000000\.0, 'centre': 10000000\.0\}\)"):
+        calibrate_E_solid(scene, "center_height", "top", 0.02, relative_to="rest")
+
+
+def test_a_probe_that_does_not_depend_on_E_solid_is_refused():
+    """Linear model, no gravity, servos only: the displacement is the prescribed motion's, whatever E_solid."""
+    scene = tomllib.loads((SCENES / "tripod_case_b.toml").read_text())
+    scene["geometry"]["h"] = 0.0075
+    scene["fem"]["model"] = "linear"
+    del scene["loads"]["gravity"]
+    for step in scene["steps"]:
+        step.pop("gravity", None)
+    with pytest.raises(CalibrationError, match=r"center_height at step 'top' does not depend on E_solid"):
+        calibrate_E_solid(scene, "center_height", "top", 0.02, comm=MPI.COMM_SELF)
+
+
+@pytest.mark.parametrize("content, match", [
+    (None, r"cannot read calibration file"),
+    ("{", r"is not valid JSON"),
+    ('{"E_solid": -3}', r"'E_solid' must be a positive modulus in Pa, got -3"),
+    ('{"probe": "x"}', r"'E_solid' must be a positive modulus in Pa, got None"),
+])
+def test_read_calibration_names_the_problem(tmp_path, content, match):
+    path = tmp_path / "calibration.json"
+    if content is not None:
+        path.write_text(content)
+    with pytest.raises(CalibrationError, match=match):
+        read_calibration(path)
