@@ -133,3 +133,27 @@ def test_read_calibration_names_the_problem(tmp_path, content, match):
         path.write_text(content)
     with pytest.raises(CalibrationError, match=match):
         read_calibration(path)
+
+
+def test_a_scene_takes_E_solid_from_a_calibration_file(tmp_path):
+    """`E_solid = {calibration = "..."}` (relative to the scene file) runs as the same scene with the number."""
+    from fenicsfoam.scene import SceneError, load_scene
+
+    (tmp_path / "cal").mkdir()
+    (tmp_path / "cal" / "calibration.json").write_text(json.dumps({"E_solid": E_TRUE, "probe": "tip_deflection"}))
+    text = (SCENES / "beam_iso.toml").read_text().replace("h = 0.0024", f"h = {COARSE_BEAM_H}")
+    calibrated = text.replace("E_solid = 12e6", 'E_solid = {calibration = "cal/calibration.json"}')
+    assert calibrated != text
+    (tmp_path / "beam.toml").write_text(calibrated + '\n[outputs]\nxdmf = false\npng = false\n')
+    scene = load_scene(tmp_path / "beam.toml")
+    assert scene.regions[0].parameters["E_solid"] == E_TRUE
+    expected = synthetic(beam("corotational"), "tip_deflection", "gravity")
+    assert run_scene(scene, comm=MPI.COMM_SELF).probe("tip_deflection")["gravity"] == pytest.approx(expected,
+                                                                                                   rel=1e-12)
+    (tmp_path / "beam.toml").write_text(text.replace("E_solid = 12e6", 'E_solid = {calibration = "missing.json"}'))
+    with pytest.raises(SceneError, match=r"regions\.beam\.E_solid\.calibration: cannot read calibration file .*"
+                                         r"missing\.json"):
+        load_scene(tmp_path / "beam.toml")
+    (tmp_path / "beam.toml").write_text(text.replace("E_solid = 12e6", 'E_solid = {file = "cal.json"}'))
+    with pytest.raises(SceneError, match=r"regions\.beam\.E_solid\.calibration: missing value"):
+        load_scene(tmp_path / "beam.toml")

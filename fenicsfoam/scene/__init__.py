@@ -13,6 +13,7 @@ Layout of a scene (SI units; servo angles in degrees)::
                     or builder = "file", path = "robot.msh" (gmsh; relative to the scene file's directory)
     [fem]           model = "linear" | "svk" | "corotational", degree = 1 | 2, [fem.petsc] options
     [regions.NAME]  tags = int | [ints] | "named region", material = "isotropic" | "transverse_isotropic" | "foam"
+                    (foam: E_solid = a modulus, or {calibration = "calibration.json"} relative to the scene file)
     [orientation]   kind = "uniform" | "per_tag" | "spiral" | "callable"  (only with anisotropic regions)
     [loads]         gravity = [gx, gy, gz], clamp = [facet tags] | "name", servos = true
     [[steps]]       label, gravity (factor), servo_deg (one angle or three), increments

@@ -189,10 +189,28 @@ def _read_fem(scene: _Table) -> tuple[str, int, dict[str, Any]]:
     return model, degree, options
 
 
-def _read_region(name: str, table: _Table, named: Mapping[str, tuple[int, ...]]) -> Region:
+def _calibrated_E_solid(region: _Table, base: Path | None) -> float:
+    """A foam region's ``E_solid = {calibration = "path"}``: the modulus of a ``calibration.json``."""
+    from fenicsfoam.calibrate import CalibrationError, read_calibration
+
+    spec = region.table("E_solid")
+    path = Path(spec.string("calibration", required=True))
+    spec.done()
+    if not path.is_absolute() and base is not None:
+        path = base / path
+    try:
+        return read_calibration(path)
+    except CalibrationError as exc:
+        raise SceneError(f"{spec.key('calibration')}: {exc}") from exc
+
+
+def _read_region(name: str, table: _Table, named: Mapping[str, tuple[int, ...]], base: Path | None = None
+                 ) -> Region:
     tags = _tags(table.raw("tags", required=True), table.key("tags"), named, "region")
     material = table.string("material", required=True, choices=tuple(MATERIAL_KEYS))
-    parameters = {key: table.number(key, required=required, default=default, **MATERIAL_CHECKS.get(key, {}))
+    calibrated = material == "foam" and isinstance(table.data.get("E_solid"), dict)
+    parameters = {key: _calibrated_E_solid(table, base) if calibrated and key == "E_solid" else
+                  table.number(key, required=required, default=default, **MATERIAL_CHECKS.get(key, {}))
                   for key, (required, default) in MATERIAL_KEYS[material].items()}
     if material == "foam":
         parameters["fit"] = table.string("fit", default="transverse", choices=FOAM_FITS)
@@ -200,12 +218,12 @@ def _read_region(name: str, table: _Table, named: Mapping[str, tuple[int, ...]])
     return Region(name, tags, material, parameters)
 
 
-def _read_regions(scene: _Table, mesh: MeshInfo) -> tuple[Region, ...]:
-    """``[regions.NAME]``: every cell tag of the mesh in exactly one region."""
+def _read_regions(scene: _Table, mesh: MeshInfo, base: Path | None = None) -> tuple[Region, ...]:
+    """``[regions.NAME]``: every cell tag of the mesh in exactly one region (``base``: calibration files)."""
     table = scene.table("regions", required=True)
     if not table.data:
         raise SceneError("regions: at least one region is required")
-    regions = tuple(_read_region(key, table.table(key), mesh.regions) for key in list(table.data))
+    regions = tuple(_read_region(key, table.table(key), mesh.regions, base) for key in list(table.data))
     table.done()
     owner: dict[int, str] = {}
     for region in regions:
@@ -346,8 +364,8 @@ def _read_outputs(scene: _Table, labels: list[str]) -> tuple[bool, tuple[str, ..
 def parse_scene(data: Mapping[str, Any], base: str | os.PathLike | None = None) -> Scene:
     """Validate a scene given as a dict (as ``tomllib`` reads it) and return the :class:`Scene`.
 
-    ``base`` is the directory a relative ``geometry.path`` refers to (:func:`load_scene` passes the scene
-    file's directory; default: the current directory).
+    ``base`` is the directory a relative ``geometry.path`` or calibration file (``E_solid = {calibration =
+    "..."}``) refers to (:func:`load_scene` passes the scene file's directory; default: the current directory).
 
     Raises
     ------
@@ -358,9 +376,10 @@ def parse_scene(data: Mapping[str, Any], base: str | os.PathLike | None = None) 
     scene = _Table(dict(data), "")
     name = scene.string("name", default="scene")
     scene.string("description", default="")
-    mesh = _read_geometry(scene, None if base is None else Path(base))
+    base = None if base is None else Path(base)
+    mesh = _read_geometry(scene, base)
     model, degree, petsc = _read_fem(scene)
-    regions = _read_regions(scene, mesh)
+    regions = _read_regions(scene, mesh, base)
     orientation = _read_orientation(scene, mesh)
     loads = _read_loads(scene, mesh)
     steps = _read_steps(scene, loads)
