@@ -1,0 +1,201 @@
+"""Prediction uncertainty from the foam table's seed scatter: every probe as value ± standard deviation.
+
+The foam table holds, at every (relative density, γ), the homogenized constants of several foam samples that
+differ only by their random seed (``homogenization/data/foam_table_samples.csv``); the shipped table is their
+mean. :func:`run_with_uncertainty` runs a scene with the mean table (the nominal prediction, as ``run_scene``)
+and once more per seed with the table of that seed alone, and reports per step the sample standard deviation
+(ddof = 1) of every probe over the seeds as ``probes_std`` beside ``probes``.
+
+Method: per-seed tables, chosen over the alternatives because
+- one seed's constants come from one foam sample, so their correlations (a sample stiffer in one direction is
+  usually stiffer in shear too) are kept; ±σ runs per constant, or a linearised sensitivity with the table's
+  per-constant ``_std`` columns, would treat the constants as independent;
+- it needs no linearisation: the Tripod is strongly nonlinear (large rotations, close to material instabilities),
+  and a finite-difference sensitivity would cost one run per constant and region (7 for case A) against one run
+  per seed (3) here;
+- it is exact for what it claims: zero scatter in the samples gives zero ``probes_std`` (every per-seed table is
+  then the mean table).
+
+What the number means: the scatter of the prediction over foam realisations of the size of the table's RVE
+(8 Voronoi cells), which overstates the scatter of a printed part made of many more cells, and with 3 seeds the
+standard deviation itself is uncertain by about ±50 % (a χ² estimate with 2 degrees of freedom). Between table
+nodes a per-seed table is interpolated as the mean table is (``foam_material``). A seed whose run does not
+converge is recorded with its error (and logged); the standard deviation is then over the converged seeds, NaN
+with fewer than two.
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import json
+import logging
+import math
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["METHOD", "UncertaintyResult", "run_with_uncertainty", "seed_tables"]
+
+logger = logging.getLogger(__name__)
+
+METHOD = ("per-seed tables: the scene run once per seed of the foam table's samples, probes_std = sample "
+          "standard deviation (ddof = 1) over the seeds")
+
+
+def seed_tables(samples_csv: str | os.PathLike, out_dir: str | os.PathLike) -> dict[int, Path]:
+    """Write one aggregated foam table per seed of a samples CSV (``out_dir/foam_table_seed<k>.csv``).
+
+    Each table has the mean table's format (:func:`homogenization.tables.aggregate` of that seed's rows alone),
+    so ``foam_material(..., table=path)`` reads it. Every seed must cover every (density, γ) of the samples.
+    """
+    from homogenization.tables import aggregate, to_csv
+
+    with open(samples_csv, newline="") as f:
+        rows = list(csv.DictReader(f))
+    if not rows:
+        raise ValueError(f"{samples_csv}: no samples")
+    nodes = {(float(r["density"]), float(r["gamma"])) for r in rows}
+    by_seed: dict[int, list[dict]] = {}
+    for r in rows:
+        by_seed.setdefault(int(float(r["seed"])), []).append(r)
+    paths = {}
+    for seed, members in sorted(by_seed.items()):
+        missing = nodes - {(float(r["density"]), float(r["gamma"])) for r in members}
+        if missing:
+            raise ValueError(f"{samples_csv}: seed {seed} has no sample at (density, gamma) = {sorted(missing)[0]}; "
+                             "every seed must cover every table node")
+        paths[seed] = to_csv(aggregate(members), Path(out_dir) / f"foam_table_seed{seed}.csv")
+    return paths
+
+
+def _explicit_regions(scene, table: Path) -> dict[str, dict[str, Any]]:
+    """The scene's regions with every foam replaced by its explicit constants from ``table``."""
+    from fenicsfoam.materials import Isotropic, foam_material
+
+    regions = copy.deepcopy(dict(scene.raw["regions"]))
+    for region in scene.regions:
+        if region.material != "foam":
+            continue
+        p = dict(region.parameters)
+        m = foam_material(p.pop("density"), p.pop("gamma"), p.pop("E_solid"), p.pop("nu_solid"), table=table, **p)
+        if isinstance(m, Isotropic):
+            constants = {"material": "isotropic", "E": m.E, "nu": m.nu, "rho": m.rho}
+        else:
+            constants = {"material": "transverse_isotropic", **m.constants, "rho": m.rho}
+        regions[region.name] = {"tags": regions[region.name]["tags"], **constants}
+    return regions
+
+
+@dataclass
+class UncertaintyResult:
+    """The nominal :class:`~fenicsfoam.scene.SceneResult` and the per-step standard deviation of its probes."""
+
+    nominal: Any                                           #: SceneResult of the mean table
+    probes_std: list[dict[str, float]] = field(default_factory=list)  #: per step of ``nominal.steps``
+    samples: list[dict[str, Any]] = field(default_factory=list)       #: per seed: its probes per step or error
+    method: str = METHOD
+
+    def summary(self) -> dict[str, Any]:
+        """``summary.json``: the nominal summary, ``probes_std`` in every step, and an ``uncertainty`` record."""
+        out = self.nominal.summary()
+        for step, std in zip(out["steps"], self.probes_std):
+            step["probes_std"] = std
+        out["uncertainty"] = {"method": self.method, "samples": self.samples}
+        return out
+
+    def table(self) -> str:
+        """Probes per step as value ± standard deviation (lengths in mm, angles in degrees)."""
+        from fenicsfoam.scene import PROBE_UNITS
+        scale = {"m": (1e3, "mm"), "deg": (1.0, "deg")}
+        lines = [f"scene {self.nominal.scene.name}: probes ± standard deviation over {len(self.samples)} foam seeds"]
+        for step, std in zip(self.nominal.steps, self.probes_std):
+            values = []
+            for name, v in step.probes.items():
+                k, unit = scale[PROBE_UNITS[name]]
+                values.append(f"{name} = {v * k:.4g} ± {std[name] * k:.2g} {unit}")
+            lines.append(f"{step.label:>10s}: " + ", ".join(values))
+        return "\n".join(lines)
+
+
+def run_with_uncertainty(source, out_dir: str | os.PathLike | None = None, *,
+                         samples_csv: str | os.PathLike | None = None, comm=None) -> UncertaintyResult:
+    """Run a scene with the mean foam table and once per seed; ``probes_std`` per step (see the module docstring).
+
+    Parameters
+    ----------
+    source
+        A scene file, a dict as ``tomllib`` reads one, or a parsed :class:`~fenicsfoam.scene.Scene`.
+    out_dir
+        Outputs of the nominal run (as :func:`~fenicsfoam.scene.run_scene`); ``summary.json`` then also holds
+        ``probes_std`` per step and the per-seed values (written atomically on rank 0). ``None`` writes nothing.
+    samples_csv
+        Per-seed samples (default: the shipped ``foam_table_samples.csv``). The nominal run always uses the
+        scene's table (the shipped mean table), so pass the samples the mean table was aggregated from.
+    comm
+        MPI communicator (default ``MPI.COMM_WORLD``).
+
+    Raises
+    ------
+    SceneError
+        Invalid scene; ``ConvergenceError`` if the nominal run fails (a seed's failure is recorded instead).
+
+    """
+    from mpi4py import MPI
+
+    from fenicsfoam.scene import Scene, load_scene, parse_scene, run_scene
+    from fenicsfoam.solver import ConvergenceError
+    from homogenization.tables import SAMPLES_CSV
+
+    comm = MPI.COMM_WORLD if comm is None else comm
+    scene = source if isinstance(source, Scene) else load_scene(source)
+    nominal = run_scene(scene, out_dir, comm=comm)
+    labels = [s.label for s in nominal.steps]
+    result = UncertaintyResult(nominal)
+    if not any(r.material == "foam" for r in scene.regions):
+        result.method = "no foam region: no table scatter to propagate"
+        result.probes_std = [dict.fromkeys(s.probes, 0.0) for s in nominal.steps]
+    else:
+        values: dict[str, list[list[float]]] = {label: [] for label in labels}
+        with tempfile.TemporaryDirectory(prefix="fenicsfoam-seeds-") as tmp:
+            tables = seed_tables(SAMPLES_CSV if samples_csv is None else samples_csv, tmp)
+            for seed, table in tables.items():
+                data = copy.deepcopy(dict(scene.raw))
+                data["regions"] = _explicit_regions(scene, table)
+                data["outputs"] = {"xdmf": False, "png": False}
+                try:
+                    run = run_scene(parse_scene(_resolved_geometry(data, scene)), comm=comm)
+                except ConvergenceError as exc:
+                    logger.warning("scene %s with foam seed %d did not converge: %s", scene.name, seed, exc)
+                    result.samples.append({"seed": seed, "error": str(exc)})
+                    continue
+                result.samples.append({"seed": seed, "steps": {s.label: s.probes for s in run.steps}})
+                for s in run.steps:
+                    if s.label in values:
+                        values[s.label].append([s.probes[name] for name in scene.probes])
+        for label in labels:
+            rows = np.array(values[label]).reshape(-1, len(scene.probes))
+            std = rows.std(axis=0, ddof=1) if len(rows) > 1 else np.full(len(scene.probes), math.nan)
+            result.probes_std.append({name: float(v) for name, v in zip(scene.probes, std)})
+    if out_dir is not None and comm.rank == 0:
+        path = Path(out_dir) / "summary.json"
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        try:
+            tmp.write_text(json.dumps(result.summary(), indent=2) + "\n")
+            os.replace(tmp, path)
+        finally:
+            if tmp.exists():
+                tmp.unlink()
+    comm.Barrier()
+    return result
+
+
+def _resolved_geometry(data: dict[str, Any], scene) -> dict[str, Any]:
+    """A mesh file path made absolute (the per-seed scene is parsed without the scene file's directory)."""
+    if scene.builder == "file":
+        data["geometry"] = {"builder": "file", "path": str(scene.geometry["path"])}
+    return data

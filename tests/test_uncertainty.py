@@ -1,0 +1,120 @@
+"""Uncertainty from the foam table's seed scatter: zero for samples without scatter, equal to a closed form on a
+linear beam (tip = c / E for gravity alone), growing with the scatter; summary.json carries probes_std.
+
+Synthetic samples tables are made from the shipped one by moving each seed's row about the shipped mean table.
+"""
+
+import csv
+import json
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from fenicsfoam.uncertainty import run_with_uncertainty, seed_tables
+from homogenization.tables import AGGREGATED, SAMPLES_CSV, TABLE_CSV, read_csv
+
+SCENES = Path(__file__).resolve().parents[1] / "demos" / "scenes"
+COARSE_BEAM_H = 0.0075  # 688 tets
+#: relative deviation of seeds 0, 1, 2 from the mean in the synthetic tables (times the scatter factor k)
+DEVIATION = {0: -0.1, 1: 0.02, 2: 0.08}
+
+
+def beam(model="linear"):
+    scene = tomllib.loads((SCENES / "beam_iso.toml").read_text())
+    scene["geometry"]["h"] = COARSE_BEAM_H
+    scene["fem"]["model"] = model
+    scene["outputs"] = {"xdmf": False, "png": False}
+    return scene
+
+
+def synthetic_samples(path, k, only=None):
+    """The shipped samples with every seed's row set to the shipped mean × (1 + k · DEVIATION[seed]).
+
+    ``only``: move only these columns (the others are set to the mean exactly); k = 0 gives no scatter at all.
+    """
+    mean = read_csv(TABLE_CSV)
+    with open(SAMPLES_CSV, newline="") as f:
+        rows = list(csv.DictReader(f))
+    for row in rows:
+        node = (mean["density"] == float(row["density"])) & (mean["gamma"] == float(row["gamma"]))
+        (i,) = np.flatnonzero(node)
+        for name in AGGREGATED:
+            factor = 1.0 + k * DEVIATION[int(row["seed"])] if only is None or name in only else 1.0
+            row[name] = repr(float(mean[name][i]) * factor)
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    return path
+
+
+def test_seed_tables_reproduce_each_seed(tmp_path):
+    tables = seed_tables(SAMPLES_CSV, tmp_path)
+    samples = read_csv(SAMPLES_CSV)
+    assert sorted(tables) == sorted(set(samples["seed"].astype(int)))
+    for seed, path in tables.items():
+        table = read_csv(path)
+        rows = samples["seed"] == seed
+        assert len(table["density"]) == rows.sum()
+        for d, g, e in zip(samples["density"][rows], samples["gamma"][rows], samples["ti_E_t"][rows]):
+            (i,) = np.flatnonzero((table["density"] == d) & (table["gamma"] == g))
+            assert table["ti_E_t"][i] == e
+
+
+def test_zero_scatter_gives_zero_std(tmp_path):
+    samples = synthetic_samples(tmp_path / "samples.csv", k=0.0)
+    result = run_with_uncertainty(beam("corotational"), samples_csv=samples, comm=MPI.COMM_SELF)
+    assert len(result.samples) == 3
+    assert result.probes_std == [{"tip_deflection": 0.0}]
+
+
+@pytest.mark.mpi
+def test_std_equals_the_closed_form_and_grows_with_the_scatter(mpi_tmp_path):
+    """Linear model, gravity only, seeds differing only in E: tip_s = tip · E_mean / E_s exactly."""
+    comm = MPI.COMM_WORLD
+    stds = []
+    for k in (0.5, 1.0, 2.0):
+        path = mpi_tmp_path / f"samples_{k}.csv"
+        if comm.rank == 0:
+            synthetic_samples(path, k, only={"iso_E"})
+        comm.Barrier()
+        result = run_with_uncertainty(beam("linear"), samples_csv=path, comm=comm)
+        tip = result.nominal.steps[0].probes["tip_deflection"]
+        expected = np.std([tip / (1.0 + k * d) for d in DEVIATION.values()], ddof=1)
+        assert result.probes_std[0]["tip_deflection"] == pytest.approx(expected, rel=1e-9)
+        stds.append(result.probes_std[0]["tip_deflection"])
+    assert 0 < stds[0] < stds[1] < stds[2]
+
+
+def test_summary_json_has_probes_std_beside_probes(tmp_path):
+    result = run_with_uncertainty(beam("linear"), tmp_path, comm=MPI.COMM_SELF)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    (step,) = summary["steps"]
+    assert set(step["probes_std"]) == set(step["probes"]) == {"tip_deflection"}
+    assert step["probes_std"]["tip_deflection"] == result.probes_std[0]["tip_deflection"] > 0
+    assert summary["uncertainty"]["method"].startswith("per-seed tables")
+    assert [s["seed"] for s in summary["uncertainty"]["samples"]] == [0, 1, 2]
+    assert "±" in result.table()
+
+
+def test_a_scene_without_foam_has_no_table_scatter():
+    scene = beam()
+    scene["regions"]["beam"] = {"tags": "beam", "material": "isotropic", "E": 3e5, "nu": 0.3, "rho": 200.0}
+    result = run_with_uncertainty(scene, comm=MPI.COMM_SELF)
+    assert result.probes_std == [{"tip_deflection": 0.0}] and result.samples == []
+
+
+def test_a_seed_missing_a_table_node_is_refused(tmp_path):
+    with open(SAMPLES_CSV, newline="") as f:
+        rows = list(csv.DictReader(f))
+    rows = [r for r in rows if not (r["seed"] == "2" and float(r["density"]) == 0.3 and float(r["gamma"]) == 0.1)]
+    path = tmp_path / "samples.csv"
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    with pytest.raises(ValueError, match=r"seed 2 has no sample at \(density, gamma\) = \(0\.3, 0\.1\)"):
+        seed_tables(path, tmp_path)
