@@ -108,6 +108,23 @@ class UncertaintyResult:
         out["uncertainty"] = {"method": self.method, "samples": self.samples}
         return out
 
+    def probe_std(self, name: str, relative_to: str | None = None) -> dict[str, float]:
+        """``{step label: σ}`` of a probe over the seeds, of its change from step ``relative_to`` if given.
+
+        The change's σ is that of the per-seed changes (the values at two steps of one seed are correlated, so it
+        is not a combination of the two steps' ``probes_std``).
+        """
+        if relative_to is None:
+            return {s.label: std[name] for s, std in zip(self.nominal.steps, self.probes_std)}
+        per_seed = [{label: p[name] - s["steps"][relative_to][name] for label, p in s["steps"].items()}
+                    for s in self.samples if "steps" in s]
+        out = {}
+        for step in self.nominal.steps:
+            values = [v[step.label] for v in per_seed if step.label in v]
+            out[step.label] = float(np.std(values, ddof=1)) if len(values) > 1 else (
+                0.0 if self.method != METHOD else math.nan)
+        return out
+
     def table(self) -> str:
         """Probes per step as value ± standard deviation (lengths in mm, angles in degrees)."""
         from fenicsfoam.scene import PROBE_UNITS

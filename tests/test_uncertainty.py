@@ -22,11 +22,13 @@ COARSE_BEAM_H = 0.0075  # 688 tets
 DEVIATION = {0: -0.1, 1: 0.02, 2: 0.08}
 
 
-def beam(model="linear"):
+def beam(model="linear", half_step=False):
     scene = tomllib.loads((SCENES / "beam_iso.toml").read_text())
     scene["geometry"]["h"] = COARSE_BEAM_H
     scene["fem"]["model"] = model
     scene["outputs"] = {"xdmf": False, "png": False}
+    if half_step:
+        scene["steps"] = [{"label": "half", "gravity": 0.5}, *scene["steps"]]
     return scene
 
 
@@ -81,11 +83,15 @@ def test_std_equals_the_closed_form_and_grows_with_the_scatter(mpi_tmp_path):
         if comm.rank == 0:
             synthetic_samples(path, k, only={"iso_E"})
         comm.Barrier()
-        result = run_with_uncertainty(beam("linear"), samples_csv=path, comm=comm)
-        tip = result.nominal.steps[0].probes["tip_deflection"]
+        result = run_with_uncertainty(beam("linear", half_step=True), samples_csv=path, comm=comm)
+        tip = result.nominal.steps[1].probes["tip_deflection"]
         expected = np.std([tip / (1.0 + k * d) for d in DEVIATION.values()], ddof=1)
-        assert result.probes_std[0]["tip_deflection"] == pytest.approx(expected, rel=1e-9)
-        stds.append(result.probes_std[0]["tip_deflection"])
+        assert result.probes_std[1]["tip_deflection"] == pytest.approx(expected, rel=1e-9)
+        # half the load: half the deflection, so the change from "half" to "gravity" has half the σ
+        assert result.probe_std("tip_deflection")["half"] == pytest.approx(expected / 2, rel=1e-9)
+        change = result.probe_std("tip_deflection", relative_to="half")
+        assert change["gravity"] == pytest.approx(expected / 2, rel=1e-9) and change["half"] == 0.0
+        stds.append(result.probes_std[1]["tip_deflection"])
     assert 0 < stds[0] < stds[1] < stds[2]
 
 

@@ -1,0 +1,82 @@
+"""Table I of the paper from today's foam table: the Tripod's changes from rest, ours ± σ / paper sim / real.
+
+Runs the shipped `demos/scenes/tripod_case_a.toml` and `tripod_case_b.toml` (P1, the paper's mesh size, as
+shipped; ``--degree 2`` for the mesh-converged answer) with :func:`fenicsfoam.uncertainty.run_with_uncertainty`:
+the nominal prediction from the mean foam table and its standard deviation over the table's foam seeds. Prints
+the changes of the centre's height (mm) and twist (deg) from rest to middle (19°) and top (38°) beside the
+paper's simulation and the real robot, and writes `table1.csv` in ``--out``.
+
+Signs: our twist is counter-clockwise seen from above; the paper does not state its sign convention, so compare
+magnitudes (both of our plates turn clockwise when their l axes turn counter-clockwise from the arms).
+
+Run: `python studies/tripod_table1.py --out out/tripod_table1 [--degree 2]` (serial or `mpirun -n 2`;
+P1 ≈ 30 s, P2 ≈ 3 min on a shared 2-core machine).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+import sys
+import tomllib
+from pathlib import Path
+
+from mpi4py import MPI
+
+from fenicsfoam.uncertainty import run_with_uncertainty
+
+SCENES = Path(__file__).resolve().parents[1] / "demos" / "scenes"
+#: Table I changes from rest (middle, top): paper's simulation, real robot.
+TABLE_I = {"tripod_case_a": {"height": ((14.38, 22.31), (12.8, 21.2)), "angle": ((7.83, 18.21), (3.96, 20.49))},
+           "tripod_case_b": {"height": ((12.06, 18.33), (12.3, 20.5)), "angle": ((17.46, 36.52), (5.53, 22.1))}}
+PROBES = {"height": ("center_height", 1e3, "mm"), "angle": ("center_rotation", 1.0, "deg")}
+
+
+def rows(degree: int, comm) -> list[dict]:
+    """One row per scene, quantity and position: ours, its σ, the paper's simulation, the real robot."""
+    out = []
+    for name, reference in TABLE_I.items():
+        scene = tomllib.loads((SCENES / f"{name}.toml").read_text())
+        scene["fem"]["degree"] = degree
+        scene["outputs"] = {"xdmf": False, "png": False}
+        result = run_with_uncertainty(scene, comm=comm)
+        for quantity, (probe, scale, unit) in PROBES.items():
+            change = result.nominal.probe(probe, relative_to="rest")
+            sigma = result.probe_std(probe, relative_to="rest")
+            for k, position in enumerate(("middle", "top")):
+                out.append({"scene": name, "quantity": f"{quantity} ({unit})", "position": position,
+                            "degree": degree, "ours": scale * change[position],
+                            "sigma": scale * sigma[position], "paper_sim": reference[quantity][0][k],
+                            "real": reference[quantity][1][k]})
+    return out
+
+
+def main(out: Path, degree: int) -> int:
+    """Print and write Table I (rank 0)."""
+    comm = MPI.COMM_WORLD
+    table = rows(degree, comm)
+    if comm.rank == 0:
+        out.mkdir(parents=True, exist_ok=True)
+        print(f"Table I, changes from rest (P{degree}; σ over the foam table's seeds)")
+        print(f"{'scene':14s} {'quantity':12s} {'position':8s} {'ours':>8s} {'± σ':>6s} {'paper sim':>9s} {'real':>7s}")
+        for r in table:
+            print(f"{r['scene']:14s} {r['quantity']:12s} {r['position']:8s} {r['ours']:8.2f} {r['sigma']:6.2f} "
+                  f"{r['paper_sim']:9.2f} {r['real']:7.2f}")
+        path = out / "table1.csv"
+        tmp = path.with_name(".table1.csv.tmp")
+        with tmp.open("w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=list(table[0]))
+            writer.writeheader()
+            writer.writerows(table)
+        os.replace(tmp, path)
+        print(f"CSV: {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description="Table I (Tripod) with the foam seed scatter.")
+    parser.add_argument("--out", type=Path, default=Path("out/tripod_table1"))
+    parser.add_argument("--degree", type=int, default=1, choices=(1, 2))
+    args = parser.parse_args()
+    sys.exit(main(args.out, args.degree))
