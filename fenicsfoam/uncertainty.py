@@ -20,8 +20,8 @@ What the number means: the scatter of the prediction over foam realisations of t
 (8 Voronoi cells), which overstates the scatter of a printed part made of many more cells, and with 3 seeds the
 standard deviation itself is uncertain by about ±50 % (a χ² estimate with 2 degrees of freedom). Between table
 nodes a per-seed table is interpolated as the mean table is (``foam_material``). A seed whose run does not
-converge is recorded with its error (and logged); the standard deviation is then over the converged seeds, NaN
-with fewer than two.
+converge is recorded with its error (and logged) and the steps it completed; a step's standard deviation is over
+the seeds that reached it, NaN with fewer than two.
 """
 
 from __future__ import annotations
@@ -32,6 +32,7 @@ import json
 import logging
 import math
 import os
+import shutil
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -97,7 +98,7 @@ class UncertaintyResult:
 
     nominal: Any                                           #: SceneResult of the mean table
     probes_std: list[dict[str, float]] = field(default_factory=list)  #: per step of ``nominal.steps``
-    samples: list[dict[str, Any]] = field(default_factory=list)       #: per seed: its probes per step or error
+    samples: list[dict[str, Any]] = field(default_factory=list)  #: per seed: probes per step done, error if any
     method: str = METHOD
 
     def summary(self) -> dict[str, Any]:
@@ -117,7 +118,7 @@ class UncertaintyResult:
         if relative_to is None:
             return {s.label: std[name] for s, std in zip(self.nominal.steps, self.probes_std)}
         per_seed = [{label: p[name] - s["steps"][relative_to][name] for label, p in s["steps"].items()}
-                    for s in self.samples if "steps" in s]
+                    for s in self.samples if relative_to in s["steps"]]
         out = {}
         for step in self.nominal.steps:
             values = [v[step.label] for v in per_seed if step.label in v]
@@ -178,22 +179,40 @@ def run_with_uncertainty(source, out_dir: str | os.PathLike | None = None, *,
         result.probes_std = [dict.fromkeys(s.probes, 0.0) for s in nominal.steps]
     else:
         values: dict[str, list[list[float]]] = {label: [] for label in labels}
-        with tempfile.TemporaryDirectory(prefix="fenicsfoam-seeds-") as tmp:
-            tables = seed_tables(SAMPLES_CSV if samples_csv is None else samples_csv, tmp)
+        tmp = comm.bcast(tempfile.mkdtemp(prefix="fenicsfoam-seeds-") if comm.rank == 0 else None, root=0)
+        try:
+            tables = None
+            if comm.rank == 0:
+                try:
+                    tables = seed_tables(SAMPLES_CSV if samples_csv is None else samples_csv, tmp)
+                except (OSError, ValueError) as exc:  # raised on every rank below
+                    tables = exc
+            tables = comm.bcast(tables, root=0)
+            if isinstance(tables, Exception):
+                raise tables
             for seed, table in tables.items():
                 data = copy.deepcopy(dict(scene.raw))
                 data["regions"] = _explicit_regions(scene, table)
                 data["outputs"] = {"xdmf": False, "png": False}
+                seed_out = Path(tmp) / f"seed{seed}"
+                sample: dict[str, Any] = {"seed": seed}
                 try:
-                    run = run_scene(parse_scene(_resolved_geometry(data, scene)), comm=comm)
-                except ConvergenceError as exc:
+                    run = run_scene(parse_scene(_resolved_geometry(data, scene)), seed_out, comm=comm)
+                    sample["steps"] = {s.label: s.probes for s in run.steps}
+                except ConvergenceError as exc:  # the steps done before the failure still count
                     logger.warning("scene %s with foam seed %d did not converge: %s", scene.name, seed, exc)
-                    result.samples.append({"seed": seed, "error": str(exc)})
-                    continue
-                result.samples.append({"seed": seed, "steps": {s.label: s.probes for s in run.steps}})
-                for s in run.steps:
-                    if s.label in values:
-                        values[s.label].append([s.probes[name] for name in scene.probes])
+                    done = (json.loads((seed_out / "summary.json").read_text())["steps"] if comm.rank == 0
+                            else None)
+                    sample["steps"] = {s["label"]: s["probes"] for s in comm.bcast(done, root=0)}
+                    sample["error"] = str(exc)
+                result.samples.append(sample)
+                for label, probes in sample["steps"].items():
+                    if label in values:
+                        values[label].append([probes[name] for name in scene.probes])
+        finally:
+            comm.Barrier()
+            if comm.rank == 0:
+                shutil.rmtree(tmp, ignore_errors=True)
         for label in labels:
             rows = np.array(values[label]).reshape(-1, len(scene.probes))
             std = rows.std(axis=0, ddof=1) if len(rows) > 1 else np.full(len(scene.probes), math.nan)

@@ -124,3 +124,31 @@ def test_a_seed_missing_a_table_node_is_refused(tmp_path):
         writer.writerows(rows)
     with pytest.raises(ValueError, match=r"seed 2 has no sample at \(density, gamma\) = \(0\.3, 0\.1\)"):
         seed_tables(path, tmp_path)
+
+
+def test_a_seed_that_fails_counts_for_the_steps_it_completed(tmp_path, monkeypatch):
+    """Seed 1 stops in the last step: 'half' has σ over the 3 seeds, 'gravity' over seeds 0 and 2."""
+    import fenicsfoam.scene
+    from fenicsfoam.solver import ConvergenceError
+
+    real_run_scene = fenicsfoam.scene.run_scene
+    calls = []
+
+    def run_scene(scene, out_dir=None, *, comm=None):
+        calls.append(scene.name)
+        if len(calls) != 3:  # nominal, seed 0, seed 1 (fails), seed 2
+            return real_run_scene(scene, out_dir, comm=comm)
+        first = fenicsfoam.scene.parse_scene({**scene.raw, "steps": scene.raw["steps"][:1]})
+        real_run_scene(first, out_dir, comm=comm)
+        raise ConvergenceError("gravity", 0.5, "DIVERGED_MAX_IT", 3)
+
+    monkeypatch.setattr(fenicsfoam.scene, "run_scene", run_scene)
+    samples = synthetic_samples(tmp_path / "samples.csv", 1.0, only={"iso_E"})
+    result = run_with_uncertainty(beam("linear", half_step=True), samples_csv=samples, comm=MPI.COMM_SELF)
+    assert len(calls) == 4
+    assert "error" in result.samples[1] and list(result.samples[1]["steps"]) == ["half"]
+    tip = result.nominal.steps[1].probes["tip_deflection"]
+    every = [tip / 2 / (1.0 + d) for d in DEVIATION.values()]
+    assert result.probes_std[0]["tip_deflection"] == pytest.approx(np.std(every, ddof=1), rel=1e-9)
+    two = [tip / (1.0 + DEVIATION[k]) for k in (0, 2)]
+    assert result.probes_std[1]["tip_deflection"] == pytest.approx(np.std(two, ddof=1), rel=1e-9)
