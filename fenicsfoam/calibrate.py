@@ -38,6 +38,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from foambase.errors import InputError
+from foambase.files import write_json_atomic
+
 __all__ = [
     "AFFINE_PROBES",
     "Calibration",
@@ -56,10 +59,11 @@ AFFINE_PROBES = frozenset({"tip_deflection", "center_height"})
 CALIBRATION_JSON = "calibration.json"
 
 
-class CalibrationError(ValueError):
-    """A calibration cannot be done: bad input, or a target no ``E_solid`` reaches; the message says which value."""
+class CalibrationError(InputError):
+    """A calibration cannot be done: bad input, or a target no ``E_solid`` reaches; the message says which value.
 
-    exit_code = 2
+    An :class:`~foambase.errors.InputError` (a ``ValueError``): the command line exits with status 2.
+    """
 
 
 @dataclass(frozen=True)
@@ -288,19 +292,13 @@ def calibrate_E_solid(source, probe: str, step: str, target: float, *, relative_
 
 
 def write_calibration(calibration: Calibration, path: str | os.PathLike, comm=None) -> Path:
-    """Write ``calibration.json`` atomically (temporary file in the same directory, then ``os.replace``), rank 0."""
+    """Write ``calibration.json`` atomically (:func:`foambase.files.write_json_atomic`) on rank 0 (collective)."""
     from mpi4py import MPI
     comm = MPI.COMM_WORLD if comm is None else comm
     path = Path(path)
     if comm.rank == 0:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        try:
-            tmp.write_text(json.dumps(calibration.to_dict(), indent=2) + "\n")
-            os.replace(tmp, path)
-        finally:
-            if tmp.exists():
-                tmp.unlink()
+        write_json_atomic(path, calibration.to_dict())
     comm.Barrier()
     return path
 

@@ -40,6 +40,8 @@ from typing import Any
 
 import numpy as np
 
+from foambase.files import write_json_atomic
+
 __all__ = ["METHOD", "UncertaintyResult", "run_with_uncertainty", "seed_tables"]
 
 logger = logging.getLogger(__name__)
@@ -218,14 +220,7 @@ def run_with_uncertainty(source, out_dir: str | os.PathLike | None = None, *,
             std = rows.std(axis=0, ddof=1) if len(rows) > 1 else np.full(len(scene.probes), math.nan)
             result.probes_std.append({name: float(v) for name, v in zip(scene.probes, std)})
     if out_dir is not None and comm.rank == 0:
-        path = Path(out_dir) / "summary.json"
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        try:
-            tmp.write_text(json.dumps(result.summary(), indent=2) + "\n")
-            os.replace(tmp, path)
-        finally:
-            if tmp.exists():
-                tmp.unlink()
+        write_json_atomic(Path(out_dir) / "summary.json", result.summary())
     comm.Barrier()
     return result
 
