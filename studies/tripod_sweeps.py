@@ -10,8 +10,12 @@ top 38°); each point reports the changes of the centre's height and twist from 
 does not converge is a row with its status (and a gap in the plot). Writes `case_a_offset.csv`,
 `case_b_pitch.csv` and one plot each (`case_a_offset.png`, `case_b_pitch.png`) in ``--out``.
 
-Run: `python studies/tripod_sweeps.py --out out/tripod_sweeps [--degrees 1 2] [--step 10]`
-(serial or under `mpirun -n 2`; P1 ≈ 1 min, P2 ≈ 10 min on a shared 2-core machine).
+Checks (exit status 1 if one fails): every point converges, the centre rises from rest to middle to top, and
+the mirror-symmetric end points (0° and 90°) twist by less than 1e-9° (round-off: the mesh is D3-invariant).
+
+Run: `python studies/tripod_sweeps.py --out out/tripod_sweeps [--degrees 1 2] [--step 10] [--ci]`
+(serial or under `mpirun -n 2`; P1 ≈ 1 min, P2 ≈ 10 min on a shared 2-core machine; ``--ci``: the end points
+0° and 90° only, P1 on the 2202-tetrahedron mesh, seconds).
 """
 
 from __future__ import annotations
@@ -29,9 +33,14 @@ from mpi4py import MPI
 
 from fenicsfoam.scene import run_scene
 from fenicsfoam.solver import ConvergenceError
+from foambase.logs import setup_logging
 
 SCENES = Path(__file__).resolve().parents[1] / "demos" / "scenes"
 ARM_DEG = (0.0, 120.0, 240.0)  # meshes.tripod.ARM_ANGLES_DEG
+#: Mesh size of ``--ci`` (2202 tetrahedra, D3-invariant).
+CI_H = 0.006
+#: |twist| of a mirror-symmetric end point at the top (deg): round-off.
+SYMMETRIC_TWIST_DEG = 1e-9
 FIELDS = ("design", "value_deg", "degree", "status", "dh_middle_mm", "dh_top_mm", "da_middle_deg", "da_top_deg")
 
 
@@ -51,10 +60,12 @@ def case_b(pitch_deg: float) -> dict:
     return scene
 
 
-def run_point(design: str, value: float, degree: int, comm) -> dict:
-    """One scene run; the changes from rest (mm, degrees), or the failure."""
+def run_point(design: str, value: float, degree: int, comm, h: float | None = None) -> dict:
+    """One scene run (``h``: another mesh size); the changes from rest (mm, degrees), or the failure."""
     scene = case_a(value) if design == "case_a_offset" else case_b(value)
     scene["fem"]["degree"] = degree
+    if h is not None:
+        scene["geometry"]["h"] = h
     scene["outputs"] = {"xdmf": False, "png": False}
     row = dict.fromkeys(FIELDS, math.nan) | {"design": design, "value_deg": value, "degree": degree, "status": "ok"}
     try:
@@ -121,17 +132,38 @@ def table(rows: list[dict], name: str) -> str:
     return "\n".join(lines)
 
 
-def main(out: Path, degrees: list[int], step: float) -> int:
-    """Run both sweeps, print and write them (rank 0)."""
+def check(rows: list[dict]) -> list[str]:
+    """Failed checks (messages; see the module docstring)."""
+    failures = []
+    for r in rows:
+        where = f"{r['design']} = {r['value_deg']:g}° (P{r['degree']})"
+        if r["status"] != "ok":
+            failures.append(f"{where}: {r['status']}")
+            continue
+        if not 0 < r["dh_middle_mm"] < r["dh_top_mm"]:
+            failures.append(f"{where}: the centre does not rise from rest to middle to top "
+                            f"({r['dh_middle_mm']:.4g}, {r['dh_top_mm']:.4g} mm)")
+        if r["value_deg"] in (0.0, 90.0) and not abs(r["da_top_deg"]) < SYMMETRIC_TWIST_DEG:
+            failures.append(f"{where}: a mirror-symmetric layout twists by {r['da_top_deg']:.3g}° at the top "
+                            f"(bound {SYMMETRIC_TWIST_DEG:g}°)")
+    return failures
+
+
+def main(out: Path, degrees: list[int], step: float, ci: bool = False) -> int:
+    """Run both sweeps, print and write them (rank 0), check them; the exit status."""
     comm = MPI.COMM_WORLD
+    if ci:
+        degrees, step = [1], 90.0
     values = np.arange(0.0, 90.0 + 1e-9, step)
     sweeps = {"case_a_offset": ("l axis from the arm, counter-clockwise (deg)",
                                 "Tripod case A: l axes turned from the arms"),
               "case_b_pitch": ("spiral pitch (deg): 0 circles, 90 radial", "Tripod case B: spiral pitch")}
     if comm.rank == 0:
         out.mkdir(parents=True, exist_ok=True)
+    failures: list[str] = []
     for design, (xlabel, title) in sweeps.items():
-        rows = [run_point(design, float(v), degree, comm) for degree in degrees for v in values]
+        rows = [run_point(design, float(v), degree, comm, CI_H if ci else None) for degree in degrees for v in values]
+        failures += check(rows)
         if comm.rank == 0:
             print(f"{design} (changes from rest: height mm, twist deg)")
             print(table(rows, "offset" if design == "case_a_offset" else "pitch"))
@@ -139,7 +171,10 @@ def main(out: Path, degrees: list[int], step: float) -> int:
             plot(rows, out / f"{design}.png", xlabel, title)
     if comm.rank == 0:
         print(f"CSV and PNG in {out}")
-    return 0
+        for failure in failures:
+            print(f"CHECK FAILED: {failure}", file=sys.stderr)
+        print("all checks passed" if not failures else f"{len(failures)} check(s) failed")
+    return 1 if failures else 0
 
 
 if __name__ == "__main__":
@@ -147,5 +182,8 @@ if __name__ == "__main__":
     parser.add_argument("--out", type=Path, default=Path("out/tripod_sweeps"))
     parser.add_argument("--degrees", type=int, nargs="+", default=[1], choices=(1, 2))
     parser.add_argument("--step", type=float, default=10.0, help="step of the swept angle (deg)")
+    parser.add_argument("--ci", action="store_true", help="the end points 0° and 90° only, P1, h = 6 mm")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-v INFO, -vv DEBUG)")
     args = parser.parse_args()
-    sys.exit(main(args.out, args.degrees, args.step))
+    setup_logging(args.verbose)
+    sys.exit(main(args.out, args.degrees, args.step, args.ci))

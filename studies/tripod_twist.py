@@ -38,15 +38,20 @@ Nothing is fitted: every number comes from the scenes' foam and the geometry abo
 degrees, counter-clockwise seen from above positive; "+30°" is l turned counter-clockwise from each arm (the
 shipped case A), its mirror image "−30°" twists by the opposite angle.
 
+Checks (exit status 1 if one fails): every layout row converges; the mirror images (±30°, ±60°) twist by
+opposite angles and the layouts along the arms (0°) not at all, to 1e-9 of the 30° twist (the mesh is
+D3-invariant, so these hold to round-off); the flat 30° layout twists by more than a degree at the top.
+
 Run (serial; ≈ 10 min on a shared 2-core machine, the P2 mesh rows dominate):
-`python studies/tripod_twist.py --out out/tripod_twist [--quick]`
+`python studies/tripod_twist.py --out out/tripod_twist [--quick | --ci]` (``--quick``: layout, model, gravity,
+P1 meshes and rest angles; ``--ci``: the layout rows 0°, ±30° of both kinematics on the 2202-tetrahedron mesh, ≈ 1
+min; also under `mpirun -n 2`).
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
-import logging
 import math
 import sys
 import time
@@ -63,6 +68,7 @@ from fenicsfoam.materials import TransverseIsotropic, foam_material
 from fenicsfoam.probes import CenterHeight, CenterRotation
 from fenicsfoam.scene import load_scene, spiral_directions
 from fenicsfoam.solver import ConvergenceError, ElasticityProblem, LoadStep
+from foambase.logs import setup_logging
 from meshes.tripod import ARM, ARM_END, CENTRE, PAPER_H, RING, TripodGeometry, make_tripod
 
 SCENES = Path(__file__).resolve().parents[1] / "demos" / "scenes"
@@ -75,6 +81,10 @@ AS_BUILT_SHIFT = 0.035
 REAL_REST_DEG = math.degrees(1.4965)
 #: Rest angle of the as-built rows (the real one does not converge with this foam; see the module docstring).
 REST_DEG = 70.0
+#: Mesh size of the ``--ci`` rows (2202 tetrahedra, D3-invariant).
+CI_H = 0.006
+#: Symmetric layouts: |twist| and |twist + mirror twist| below this fraction of the 30° layout's twist.
+SYMMETRY_RTOL = 1e-9
 ACTUATION_DEG = (19.0, 38.0)
 #: Table I: changes from rest (middle, top) of the paper's simulation and of the real robot.
 TABLE_I = {"A": {"sim": {"dh": (14.38, 22.31), "da": (7.83, 18.21)}, "real": {"dh": (12.8, 21.2), "da": (3.96, 20.49)}},
@@ -217,8 +227,12 @@ def run_case(c: Case, materials: dict, comm=MPI.COMM_WORLD) -> Row:
     return row
 
 
-def cases(quick: bool) -> list[Case]:
-    """The study's runs, grouped by factor (``quick``: a subset without the P2 and sensitivity rows)."""
+def cases(quick: bool, ci: bool = False) -> list[Case]:
+    """The study's runs, grouped by factor (``quick``: a subset without the P2 and sensitivity rows; ``ci``: the
+    layout rows 0°, ±30° of both kinematics on the coarser mesh)."""
+    if ci:
+        return [Case("layout", f"l {offset:+.0f}° from the arm", offset_deg=offset, kinematics=kinematics, h=CI_H)
+                for kinematics in ("flat", "as_built") for offset in (0.0, 30.0, -30.0)]
     out = []
     for kinematics in ("flat", "as_built"):
         for offset in (0.0, 30.0, -30.0, 60.0, -60.0):
@@ -278,15 +292,44 @@ def write_csv(rows: list[Row], path: Path) -> None:
     os.replace(tmp, path)
 
 
-def main(out: Path, quick: bool) -> int:
-    """Run the cases, print the table, write the CSV (rank 0)."""
+def check(rows: list[Row]) -> list[str]:
+    """Failed checks of the layout rows (messages; see the module docstring)."""
+    failures = []
+    layout = {(r.label, r.kinematics): r for r in rows if r.group == "layout"}
+    for (label, kinematics), r in layout.items():
+        if r.status != "ok":
+            failures.append(f"layout {label} ({kinematics}) did not run through: {r.status}")
+    for kinematics in ("flat", "as_built"):
+        plus = layout.get(("l +30° from the arm", kinematics))
+        if plus is None or plus.status != "ok":
+            continue
+        bound = SYMMETRY_RTOL * abs(plus.da_top)
+        if kinematics == "flat" and not abs(plus.da_top) > 1.0:
+            failures.append(f"layout +30° (flat) twists by {plus.da_top:.3g}° at the top, expected more than 1°")
+        along = layout.get(("l +0° from the arm", kinematics))
+        if along is not None and along.status == "ok" and not abs(along.da_top) < bound:
+            failures.append(f"layout 0° ({kinematics}) twists by {along.da_top:.3g}° (symmetry bound {bound:.3g}°)")
+        for offset in (30, 60):
+            a, b = layout.get((f"l +{offset}° from the arm", kinematics)), layout.get((f"l -{offset}° from the arm",
+                                                                                         kinematics))
+            if a is None or b is None or "ok" != a.status or "ok" != b.status:
+                continue
+            for key in ("da_middle", "da_top"):
+                if not abs(getattr(a, key) + getattr(b, key)) < bound:
+                    failures.append(f"layouts ±{offset}° ({kinematics}): {key} {getattr(a, key):.6g}° and "
+                                    f"{getattr(b, key):.6g}° are not opposite (bound {bound:.3g}°)")
+    return failures
+
+
+def main(out: Path, quick: bool, ci: bool = False) -> int:
+    """Run the cases, print the table, write the CSV, check the layout rows (rank 0); the exit status."""
     comm = MPI.COMM_WORLD
     materials = scene_materials()
     if comm.rank == 0:
         for name, m in materials.items():
             print(f"{name}: {m}")
     rows = []
-    for c in cases(quick):
+    for c in cases(quick, ci):
         rows.append(run_case(c, materials, comm))
         if comm.rank == 0:
             r = rows[-1]
@@ -297,13 +340,20 @@ def main(out: Path, quick: bool) -> int:
         write_csv(rows, out / "tripod_twist.csv")
         print(table(rows))
         print(f"CSV: {out / 'tripod_twist.csv'}")
-    return 0
+    failures = comm.bcast(check(rows) if comm.rank == 0 else None, root=0)
+    if comm.rank == 0:
+        for failure in failures:
+            print(f"CHECK FAILED: {failure}", file=sys.stderr)
+        print("all checks passed" if not failures else f"{len(failures)} check(s) failed")
+    return 1 if failures else 0
 
 
 if __name__ == "__main__":
-    logging.basicConfig(level=logging.WARNING)
     parser = argparse.ArgumentParser(description="Tripod twist: one factor at a time.")
     parser.add_argument("--out", type=Path, default=Path("out/tripod_twist"))
     parser.add_argument("--quick", action="store_true", help="layout, model, gravity, P1 meshes and rest angles")
+    parser.add_argument("--ci", action="store_true", help="layout rows 0°, ±30° of both kinematics, h = 6 mm")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-v INFO, -vv DEBUG)")
     args = parser.parse_args()
-    sys.exit(main(args.out, args.quick))
+    setup_logging(args.verbose)
+    sys.exit(main(args.out, args.quick, args.ci))
