@@ -19,6 +19,9 @@ guess otherwise (nonlinear models, ``center_rotation``): the root is then bracke
 factor 2 in ``E_solid`` and found by Brent's method on ``log E_solid`` (``scipy.optimize.brentq``) to a relative
 tolerance ``rtol`` of ``E_solid``. Runs are memoised, so a value is never computed twice.
 
+Command line: ``fenicsfoam calibrate SCENE.toml --probe NAME --step LABEL --target VALUE [--relative-to LABEL]
+--out DIR`` (:data:`CALIBRATE`).
+
 Errors (:class:`CalibrationError`, raised before any run where possible): an unknown probe or step, a
 non-finite target, a scene without foam regions or whose foam regions disagree on ``E_solid``, a probe that does
 not depend on ``E_solid``, a target outside the reachable range (wrong sign, or beyond the asymptote of an
@@ -43,6 +46,7 @@ from foambase.files import write_json_atomic
 
 __all__ = [
     "AFFINE_PROBES",
+    "CALIBRATE",
     "Calibration",
     "CalibrationError",
     "calibrate_E_solid",
@@ -79,13 +83,15 @@ class Calibration:
     relative_to: str | None = None    #: the probe is a change from this step, if given
     method: str = ""
     scene: str = ""
+    E_solid_initial: float = math.nan  #: the scene's own E_solid (Pa), the search's starting point
     history: tuple[tuple[float, float], ...] = field(default_factory=tuple)  #: (E_solid, probe) of every run
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict: ``E_solid``, ``probe``, ``target``, ``achieved``, ``runs`` and the details."""
         return {"E_solid": self.E_solid, "probe": self.probe, "target": self.target, "achieved": self.achieved,
                 "runs": self.runs, "step": self.step, "relative_to": self.relative_to, "method": self.method,
-                "scene": self.scene, "history": [list(h) for h in self.history]}
+                "scene": self.scene, "E_solid_initial": self.E_solid_initial,
+                "history": [list(h) for h in self.history]}
 
 
 def _load_raw(source) -> tuple[dict[str, Any], Path | None]:
@@ -188,7 +194,8 @@ def calibrate_E_solid(source, probe: str, step: str, target: float, *, relative_
     max_runs
         Most scene runs allowed.
     out_dir
-        If given, ``out_dir/calibration.json`` is written (atomically, on rank 0).
+        If given, ``out_dir/calibration.json`` is written (atomically, on rank 0); the directory is checked before
+        any run (created if needed; other files in it stay).
     comm
         MPI communicator of the runs (default ``MPI.COMM_WORLD``).
 
@@ -205,6 +212,10 @@ def calibrate_E_solid(source, probe: str, step: str, target: float, *, relative_
 
     from fenicsfoam.solver import ConvergenceError
     comm = MPI.COMM_WORLD if comm is None else comm
+    if out_dir is not None:  # before any work: a directory that can take calibration.json
+        from foambase.files import check_output_dir
+        from foambase.mpi import on_rank0
+        on_rank0(comm, lambda: check_output_dir(out_dir, "out_dir"), f"the output directory {out_dir} cannot be used")
     data, base = _load_raw(source)
     scene, E0 = _validate(data, base, probe, step, relative_to, target)
     target = float(target)
@@ -283,7 +294,7 @@ def calibrate_E_solid(source, probe: str, step: str, target: float, *, relative_
         achieved = value(E)
     calibration = Calibration(E_solid=float(E), probe=probe, step=step, target=target, achieved=float(achieved),
                               runs=len(runs.values), relative_to=relative_to, method=method, scene=scene.name,
-                              history=runs.history)
+                              E_solid_initial=float(E0), history=runs.history)
     logger.info("calibrated E_solid = %.10g Pa (%s = %.10g, target %.10g) in %d runs", calibration.E_solid, probe,
                 calibration.achieved, target, calibration.runs)
     if out_dir is not None:
@@ -317,3 +328,67 @@ def read_calibration(path: str | os.PathLike) -> float:
         raise CalibrationError(f"calibration file {str(path)!r}: 'E_solid' must be a positive modulus in Pa, "
                                f"got {E!r}")
     return float(E)
+
+
+# --------------------------------------------------------------------------------------------------
+# Command line: fenicsfoam calibrate
+# --------------------------------------------------------------------------------------------------
+def _calibrate_arguments(parser) -> None:
+    from foambase.cli import nonempty_path
+
+    parser.add_argument("scene", type=nonempty_path, help="the scene file (TOML); its foam regions share one E_solid")
+    parser.add_argument("--probe", required=True, help="the probe matched (e.g. tip_deflection)")
+    parser.add_argument("--step", required=True, help="label of the load step at which it is matched")
+    parser.add_argument("--target", type=float, required=True,
+                        help="the measured value in the probe's SI unit (m; degrees for center_rotation)")
+    parser.add_argument("--relative-to", default=None, metavar="LABEL",
+                        help="match the change of the probe from this step (e.g. rest)")
+    parser.add_argument("--out", type=nonempty_path, required=True, help="output directory: DIR/calibration.json")
+    parser.add_argument("--rtol", type=float, default=1e-10, help="relative tolerance on E_solid (nonlinear cases)")
+    parser.add_argument("--E-range", type=float, nargs=2, default=None, metavar=("LOW", "HIGH"),
+                        help="E_solid searched (Pa); default 1e-3 to 1e3 times the scene's E_solid")
+    parser.add_argument("--max-runs", type=int, default=60, help="most scene runs allowed")
+
+
+def _calibrate_check(parser, args) -> None:
+    """Usage errors before any work: the target, the tolerance, the range, the run budget."""
+    if not math.isfinite(args.target):
+        parser.error(f"--target must be a finite number (the probe's SI unit), got {args.target!r}")
+    if not 0 < args.rtol < 1:
+        parser.error(f"--rtol must be in (0, 1), got {args.rtol!r}")
+    if args.E_range is not None and not (0 < args.E_range[0] < args.E_range[1] and math.isfinite(args.E_range[1])):
+        parser.error(f"--E-range must be two increasing positive moduli (Pa), got {args.E_range}")
+    if args.max_runs < 3:
+        parser.error(f"--max-runs must be at least 3 (two runs and a check), got {args.max_runs}")
+
+
+def _calibrate_run(args) -> int:
+    from mpi4py import MPI
+
+    comm = MPI.COMM_WORLD
+    calibration = calibrate_E_solid(args.scene, args.probe, args.step, args.target, relative_to=args.relative_to,
+                                    rtol=args.rtol, E_range=None if args.E_range is None else tuple(args.E_range),
+                                    max_runs=args.max_runs, out_dir=args.out, comm=comm)
+    if comm.rank == 0:
+        what = f"{calibration.probe} at {calibration.step}" + (
+            f" relative to {calibration.relative_to}" if calibration.relative_to else "")
+        print(f"E_solid = {calibration.E_solid:.10g} Pa: {what} = {calibration.achieved:.10g} "
+              f"(target {calibration.target:.10g}) in {calibration.runs} runs ({calibration.method})")
+        print(f"written: {Path(args.out) / CALIBRATION_JSON}")
+    return 0
+
+
+def _command():
+    from foambase.cli import Command
+
+    return Command(
+        "calibrate", "find the E_solid of a scene's foams for which a probe matches a measurement",
+        _calibrate_arguments, _calibrate_run, check=_calibrate_check,
+        description="Find the one E_solid shared by every foam region of a scene for which PROBE at step STEP "
+                    "(or its change from --relative-to) equals --target; writes DIR/calibration.json, which a "
+                    "scene takes with E_solid = {calibration = \"...\"}. Works under mpirun. Exit 2: a bad "
+                    "request or an unreachable target, named.")
+
+
+#: The ``fenicsfoam calibrate`` sub-command (registered in :data:`fenicsfoam.cli.COMMANDS`).
+CALIBRATE = _command()

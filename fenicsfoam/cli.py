@@ -1,6 +1,8 @@
 """The ``fenicsfoam`` command line: ``fenicsfoam COMMAND [-v] [options]``.
 
-Commands: ``info`` (versions of the numerical stack), ``run`` (a TOML scene), ``homogenize`` (FFT homogenization
+Commands: ``info`` (versions of the numerical stack), ``run`` (a TOML scene; ``--uncertainty``: every probe ± its
+standard deviation over the foam table's seeds), ``calibrate`` (the foams' ``E_solid`` from one measurement,
+:mod:`fenicsfoam.calibrate`), ``homogenize`` (FFT homogenization
 of a foam or a phase image; the ``homogenize`` program is the same command), ``table`` (the foam-table sweep).
 Exit status: 0 ok, 1 other failure, 2 bad input (detected before any work), 3 a solver did not converge.
 ``-v`` logs INFO (and FFCx's compiler lines), ``-vv`` DEBUG, on rank 0.
@@ -26,6 +28,7 @@ logger = logging.getLogger(__name__)
 COMMANDS: tuple[str, ...] = (
     "fenicsfoam.cli:INFO",
     "fenicsfoam.cli:RUN",
+    "fenicsfoam.calibrate:CALIBRATE",
     "homogenization.cli:HOMOGENIZE",
     "homogenization.cli:TABLE",
 )
@@ -58,6 +61,18 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("scene", type=cli.nonempty_path, help="the scene file (TOML)")
     parser.add_argument("--out", type=cli.nonempty_path, required=True,
                         help="output directory: new, empty, or a previous run's folder (its files are replaced)")
+    parser.add_argument("--uncertainty", action="store_true",
+                        help="also run once per seed of the foam table: every probe as value ± standard deviation "
+                             "(summary.json: probes_std per step)")
+    parser.add_argument("--samples", type=cli.nonempty_path, default=None, metavar="CSV",
+                        help="per-seed samples for --uncertainty (default: the shipped foam_table_samples.csv)")
+
+
+def _run_check(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    if args.samples is not None and not args.uncertainty:
+        parser.error("--samples is used only with --uncertainty")
+    if args.samples is not None and not args.samples.is_file():
+        parser.error(f"--samples: file {str(args.samples)!r} does not exist")
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -79,7 +94,12 @@ def _run(args: argparse.Namespace) -> int:
     if args.passthrough:
         db.insertString(" ".join(args.passthrough))
     try:
-        result = run_scene(args.scene, args.out, comm=comm)
+        if args.uncertainty:
+            from fenicsfoam.uncertainty import run_with_uncertainty
+
+            result = run_with_uncertainty(args.scene, args.out, samples_csv=args.samples, comm=comm)
+        else:
+            result = run_scene(args.scene, args.out, comm=comm)
     finally:
         unused = unused_command_line_options(args.passthrough)
         if unused:
@@ -97,8 +117,9 @@ INFO = cli.Command("info", "versions of the numerical stack", lambda parser: Non
 RUN = cli.Command(
     "run", "run a TOML scene: summary.json, probes.csv, solution.xdmf, PNGs", _run_arguments, _run,
     description="Run a TOML scene (every key: the docs' scenes page). PETSc options after '--' apply to the "
-                "scene's solver, prefix 'scene_' (e.g. -- -scene_snes_rtol 1e-8). Works under mpirun.",
-    passthrough=True)
+                "scene's solver, prefix 'scene_' (e.g. -- -scene_snes_rtol 1e-8). With --uncertainty, every "
+                "probe is reported as value ± standard deviation over the foam table's seeds. Works under mpirun.",
+    check=_run_check, passthrough=True)
 
 
 def main(argv: list[str] | None = None) -> int:

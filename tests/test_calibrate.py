@@ -157,3 +157,95 @@ def test_a_scene_takes_E_solid_from_a_calibration_file(tmp_path):
     (tmp_path / "beam.toml").write_text(text.replace("E_solid = 12e6", 'E_solid = {file = "cal.json"}'))
     with pytest.raises(SceneError, match=r"regions\.beam\.E_solid\.calibration: missing value"):
         load_scene(tmp_path / "beam.toml")
+
+
+# --------------------------------------------------------------------------------------------------
+# fenicsfoam calibrate
+# --------------------------------------------------------------------------------------------------
+MPI_ENV = {"OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
+           "OMPI_MCA_btl_vader_single_copy_mechanism": "none", "OMPI_MCA_rmaps_base_oversubscribe": "1",
+           "OPENBLAS_NUM_THREADS": "1"}
+
+
+def beam_file(directory, model="linear"):
+    """The coarse beam as a scene file (the command line reads files): the shipped text, mesh and model edited."""
+    text = (SCENES / "beam_iso.toml").read_text()
+    edited = text.replace("h = 0.0024", f"h = {COARSE_BEAM_H}").replace('model = "corotational"', f'model = "{model}"')
+    assert edited.count(str(COARSE_BEAM_H)) == 1 and f'model = "{model}"' in edited
+    path = directory / "beam.toml"
+    path.write_text(edited + '\n[outputs]\nxdmf = false\npng = false\n')
+    return path
+
+
+def test_cli_recovers_a_known_E_solid_and_writes_calibration_json(tmp_path, capsys):
+    from fenicsfoam.cli import main
+
+    target = synthetic(beam("linear"), "tip_deflection", "gravity")
+    out = tmp_path / "cal"
+    assert main(["calibrate", str(beam_file(tmp_path)), "--probe", "tip_deflection", "--step", "gravity",
+                 "--target", repr(target), "--out", str(out)]) == 0
+    written = json.loads((out / "calibration.json").read_text())
+    assert written["E_solid"] == pytest.approx(E_TRUE, rel=1e-6)
+    assert written["achieved"] == pytest.approx(target, rel=1e-6) and written["target"] == target
+    assert written["probe"] == "tip_deflection" and written["runs"] == 3 and written["E_solid_initial"] == 12e6
+    assert "E_solid = " in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--target", "nan"], "--target must be a finite number (the probe's SI unit), got nan"),
+    (["--target", "-0.048", "--rtol", "0"], "--rtol must be in (0, 1), got 0.0"),
+    (["--target", "-0.048", "--E-range", "2e7", "1e7"], "--E-range must be two increasing positive moduli"),
+])
+def test_cli_usage_errors_exit_2_before_any_run(tmp_path, monkeypatch, capsys, argv, message):
+    from fenicsfoam.cli import main
+
+    def no_run(*args, **kwargs):
+        raise AssertionError("a scene was run")
+
+    monkeypatch.setattr(fenicsfoam.scene, "run_scene", no_run)
+    with pytest.raises(SystemExit) as info:
+        main(["calibrate", str(beam_file(tmp_path)), "--probe", "tip_deflection", "--step", "gravity", *argv,
+              "--out", str(tmp_path / "cal")])
+    assert info.value.code == 2 and message in capsys.readouterr().err
+    assert not (tmp_path / "cal").exists()
+
+
+def test_cli_bad_requests_exit_2_naming_the_value(tmp_path, monkeypatch, capsys):
+    """An unknown probe or a missing scene: before any run; a wrong-sign target: after the two affine runs."""
+    from fenicsfoam.cli import main
+
+    scene = str(beam_file(tmp_path))
+    out = str(tmp_path / "cal")
+    real_run_scene = fenicsfoam.scene.run_scene
+    monkeypatch.setattr(fenicsfoam.scene, "run_scene", lambda *a, **k: pytest.fail("a scene was run"))
+    assert main(["calibrate", scene, "--probe", "tip_angle", "--step", "gravity", "--target", "1", "--out", out]) == 2
+    assert "probe 'tip_angle' is unknown; valid: tip_deflection" in capsys.readouterr().err
+    assert main(["calibrate", str(tmp_path / "missing.toml"), "--probe", "tip_deflection", "--step", "gravity",
+                 "--target", "-0.048", "--out", out]) == 2
+    assert "missing.toml" in capsys.readouterr().err
+    monkeypatch.setattr(fenicsfoam.scene, "run_scene", real_run_scene)
+    assert main(["calibrate", scene, "--probe", "tip_deflection", "--step", "gravity", "--target", "0.01",
+                 "--out", out]) == 2
+    assert "target 0.01 is not reachable" in capsys.readouterr().err
+    assert not (tmp_path / "cal").exists()
+
+
+def test_cli_under_mpirun_matches_the_serial_calibration(tmp_path):
+    """Two ranks find the serial E_solid (the probes do not depend on the partition); errors are printed once."""
+    import os
+    import subprocess
+    import sys
+
+    scene = beam_file(tmp_path)
+    target = synthetic(beam("linear"), "tip_deflection", "gravity")
+    base = ["mpirun", "-n", "2", sys.executable, "-m", "mpi4py", "-m", "fenicsfoam.cli", "calibrate", str(scene),
+            "--probe", "tip_deflection", "--step", "gravity", "--out", str(tmp_path / "cal")]
+    env = {**os.environ, **MPI_ENV}
+    ok = subprocess.run([*base, "--target", repr(target)], capture_output=True, text=True, env=env, timeout=600)
+    assert ok.returncode == 0, ok.stderr[-3000:]
+    assert ok.stdout.count("E_solid = ") == 1
+    assert json.loads((tmp_path / "cal" / "calibration.json").read_text())["E_solid"] == pytest.approx(E_TRUE,
+                                                                                                        rel=1e-6)
+    bad = subprocess.run([*base, "--target", "0.01"], capture_output=True, text=True, env=env, timeout=600)
+    assert bad.returncode == 2, bad.stderr[-3000:]
+    assert bad.stderr.count("target 0.01 is not reachable") == 1

@@ -121,7 +121,7 @@ def test_usage_errors_exit_2_and_help_lists_the_exit_codes(capsys):
         main(["--help"])
     assert info.value.code == 0
     out = capsys.readouterr().out
-    assert all(name in out for name in ("info", "run", "homogenize", "table"))
+    assert all(name in out for name in ("info", "run", "calibrate", "homogenize", "table"))
     assert "2 bad input" in out and "3 a solver" in out
 
 

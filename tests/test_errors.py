@@ -30,6 +30,7 @@ NAMED = {
     "fenicsfoam.scene.SceneError": (ValueError, EXIT_INPUT),
     "fenicsfoam.orientation.OrientationError": (ValueError, EXIT_INPUT),
     "fenicsfoam.validity.SmallStrainValidityError": (RuntimeError, EXIT_FAILURE),
+    "fenicsfoam.calibrate.CalibrationError": (ValueError, EXIT_INPUT),
 }
 
 

@@ -152,3 +152,77 @@ def test_a_seed_that_fails_counts_for_the_steps_it_completed(tmp_path, monkeypat
     assert result.probes_std[0]["tip_deflection"] == pytest.approx(np.std(every, ddof=1), rel=1e-9)
     two = [tip / (1.0 + DEVIATION[k]) for k in (0, 2)]
     assert result.probes_std[1]["tip_deflection"] == pytest.approx(np.std(two, ddof=1), rel=1e-9)
+
+
+# --------------------------------------------------------------------------------------------------
+# fenicsfoam run --uncertainty
+# --------------------------------------------------------------------------------------------------
+def beam_file(directory):
+    """The coarse linear beam, loaded at half and full gravity, as a scene file."""
+    text = (SCENES / "beam_iso.toml").read_text()
+    edited = text.replace("h = 0.0024", f"h = {COARSE_BEAM_H}").replace('model = "corotational"', 'model = "linear"')
+    edited = edited.replace('[[steps]]\nlabel = "gravity"', '[[steps]]\nlabel = "half"\ngravity = 0.5\n\n'
+                            '[[steps]]\nlabel = "gravity"')
+    assert edited.count('label = "half"') == 1 and 'model = "linear"' in edited
+    path = directory / "beam.toml"
+    path.write_text(edited + '\n[outputs]\nxdmf = false\npng = false\n')
+    return path
+
+
+def test_cli_run_uncertainty_reports_value_and_std(tmp_path, capsys):
+    """summary.json: probes_std beside probes in every step, the closed form of the synthetic scatter; printed ±."""
+    from fenicsfoam.cli import main
+
+    samples = synthetic_samples(tmp_path / "samples.csv", 1.0, only={"iso_E"})
+    out = tmp_path / "out"
+    assert main(["run", str(beam_file(tmp_path)), "--out", str(out), "--uncertainty", "--samples", str(samples)]) == 0
+    printed = capsys.readouterr().out
+    summary = json.loads((out / "summary.json").read_text())
+    assert [s["label"] for s in summary["steps"]] == ["half", "gravity"]
+    for step in summary["steps"]:
+        assert set(step["probes_std"]) == set(step["probes"]) == {"tip_deflection"}
+        tip = step["probes"]["tip_deflection"]
+        expected = np.std([tip / (1.0 + d) for d in DEVIATION.values()], ddof=1)
+        assert step["probes_std"]["tip_deflection"] == pytest.approx(expected, rel=1e-9)
+        assert f"± {1e3 * expected:.2g} mm" in printed
+    assert summary["uncertainty"]["method"].startswith("per-seed tables")
+
+
+def test_cli_run_uncertainty_zero_scatter_and_usage_errors(tmp_path, capsys):
+    from fenicsfoam.cli import main
+
+    scene = str(beam_file(tmp_path))
+    samples = synthetic_samples(tmp_path / "samples.csv", 0.0)
+    assert main(["run", scene, "--out", str(tmp_path / "zero"), "--uncertainty", "--samples", str(samples)]) == 0
+    summary = json.loads((tmp_path / "zero" / "summary.json").read_text())
+    assert [s["probes_std"] for s in summary["steps"]] == [{"tip_deflection": 0.0}] * 2
+    for argv, message in ((["--samples", str(samples)], "--samples is used only with --uncertainty"),
+                          (["--uncertainty", "--samples", str(tmp_path / "none.csv")], "none.csv' does not exist")):
+        with pytest.raises(SystemExit) as info:
+            main(["run", scene, "--out", str(tmp_path / "bad"), *argv])
+        assert info.value.code == 2 and message in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()
+
+
+def test_cli_run_uncertainty_under_mpirun_matches_serial(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    from fenicsfoam.cli import main
+
+    scene = str(beam_file(tmp_path))
+    samples = str(synthetic_samples(tmp_path / "samples.csv", 1.0))
+    assert main(["run", scene, "--out", str(tmp_path / "serial"), "--uncertainty", "--samples", samples]) == 0
+    env = {**os.environ, "OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
+           "OMPI_MCA_btl_vader_single_copy_mechanism": "none", "OMPI_MCA_rmaps_base_oversubscribe": "1",
+           "OPENBLAS_NUM_THREADS": "1"}
+    result = subprocess.run(["mpirun", "-n", "2", sys.executable, "-m", "mpi4py", "-m", "fenicsfoam.cli", "run", scene,
+                             "--out", str(tmp_path / "two"), "--uncertainty", "--samples", samples],
+                            capture_output=True, text=True, env=env, timeout=600)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert result.stdout.count("probes ± standard deviation") == 1
+    serial, two = (json.loads((tmp_path / d / "summary.json").read_text())["steps"] for d in ("serial", "two"))
+    for a, b in zip(serial, two):
+        assert b["probes_std"]["tip_deflection"] == pytest.approx(a["probes_std"]["tip_deflection"], rel=1e-7)
+        assert b["probes"]["tip_deflection"] == pytest.approx(a["probes"]["tip_deflection"], rel=1e-9)
