@@ -6,6 +6,9 @@ the nominal prediction from the mean foam table and its standard deviation over 
 the changes of the centre's height (mm) and twist (deg) from rest to middle (19°) and top (38°) beside the
 paper's simulation and the real robot, and writes `table1.csv` in ``--out``.
 
+The full comparison (the Fig. 6 beams too, the datasheet and the calibrated E_s, errors, a parity plot) is
+`demos/experiments.py`; this study adds the P2 column.
+
 Signs: our twist is counter-clockwise seen from above; the paper does not state its sign convention, so compare
 magnitudes (both of our plates turn clockwise when their l axes turn counter-clockwise from the arms).
 
@@ -25,6 +28,7 @@ from pathlib import Path
 from mpi4py import MPI
 
 from fenicsfoam.uncertainty import run_with_uncertainty
+from foambase.logs import setup_logging
 
 SCENES = Path(__file__).resolve().parents[1] / "demos" / "scenes"
 #: Table I changes from rest (middle, top): paper's simulation, real robot.
@@ -81,5 +85,7 @@ if __name__ == "__main__":
     parser.add_argument("--out", type=Path, default=Path("out/tripod_table1"))
     parser.add_argument("--degree", type=int, default=1, choices=(1, 2))
     parser.add_argument("--ci", action="store_true", help="coarser mesh (h = 6 mm)")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-v INFO, -vv DEBUG)")
     args = parser.parse_args()
+    setup_logging(args.verbose)
     sys.exit(main(args.out, args.degree, args.ci))
