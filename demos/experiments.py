@@ -211,7 +211,7 @@ def error(quantity: str, value: float, real: float) -> float:
 
 
 def target(name: str, quantity: str) -> tuple[str, float] | None:
-    """The issue's target of a quantity, as (description, bound of |error|), or None."""
+    """The target of a quantity (the module docstring's), as (description, bound of |error|), or None."""
     if name in ("beam_ti_y", "beam_ti_z"):
         return "within 15 %", 100 * LENGTH_TARGET
     if name in ("tripod_case_a", "tripod_case_b"):
