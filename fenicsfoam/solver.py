@@ -2,14 +2,15 @@
 
 The problem: find the displacement ``u`` with prescribed rigid motions on tagged regions such that
 
-    ∫ P(u) : ∇v dX - ∫ ρ s g · v dX = 0   for all admissible v,
+    ∫ P(u) : ∇v dX - ∫ ρ s g · v dX - Σ_l s_l ⟨f_l(u), v⟩ = 0   for all admissible v,
 
 ``P`` the first Piola–Kirchhoff stress of the model (:mod:`fenicsfoam.constitutive`), ``ρ`` the reference
-density, ``g`` the gravity vector and ``s`` its load factor. Loads (the gravity factor, the angle and
-translation of every :class:`~fenicsfoam.bcs.RigidMotion`) change from one :class:`LoadStep` to the next
-linearly in equal increments; a failed increment (SNES not converged, or an inverted element) is halved,
-up to ``max_cutbacks`` times, and then :class:`ConvergenceError` is raised with the last converged state
-kept in ``u``.
+density, ``g`` the gravity vector and ``s`` its load factor, ``f_l`` the external loads of
+:mod:`fenicsfoam.loads` (tractions, follower pressures, cables), each with its own factor ``s_l``. Loads (the
+gravity factor, the load factors, the angle and translation of every :class:`~fenicsfoam.bcs.RigidMotion`)
+change from one :class:`LoadStep` to the next linearly in equal increments; a failed increment (SNES not
+converged, or an inverted element) is halved, up to ``max_cutbacks`` times, and then :class:`ConvergenceError`
+is raised with the last converged state kept in ``u``.
 
 Residual and Jacobian are assembled from the UFL forms with ``dolfinx.fem.petsc``; Dirichlet conditions
 enter the Newton correction by lifting (rows of constrained dofs read ``k (x - g)`` with the Jacobian
@@ -45,6 +46,7 @@ from petsc4py import PETSc
 
 from fenicsfoam.bcs import MotionBC, RigidMotion
 from fenicsfoam.constitutive import MaterialField, Model, PolarRotation, as_model, deformation_gradient
+from fenicsfoam.loads import Load
 from fenicsfoam.stability import EllipticityCheck, ellipticity_margin
 from foambase.errors import InputError, NotConvergedError
 from foambase.nullspace import rigid_body_modes
@@ -105,6 +107,9 @@ class LoadStep:
         ``{motion name: angle}`` in radians at the end of the step; motions not listed keep theirs.
     translations
         ``{motion name: (tx, ty, tz)}`` in metres at the end of the step; motions not listed keep theirs.
+    factors
+        ``{load name: factor}`` of the external loads (:mod:`fenicsfoam.loads`) at the end of the step; loads not
+        listed keep theirs.
     increments
         Initial number of equal increments (halved automatically on failure).
 
@@ -115,6 +120,7 @@ class LoadStep:
     angles: Mapping[str, float] = field(default_factory=dict)
     translations: Mapping[str, Sequence[float]] = field(default_factory=dict)
     increments: int = 1
+    factors: Mapping[str, float] = field(default_factory=dict)
 
     def __post_init__(self):
         if not (isinstance(self.increments, int) and self.increments >= 1):
@@ -143,11 +149,12 @@ class StepStats:
 
 @dataclass(frozen=True)
 class LoadState:
-    """Current load parameters: gravity factor, and angle (rad) and translation (m) per motion name."""
+    """Current load parameters: gravity factor, angle (rad) and translation (m) per motion, factor per load."""
 
     gravity: float
     angles: Mapping[str, float]
     translations: Mapping[str, np.ndarray]
+    factors: Mapping[str, float] = field(default_factory=dict)
 
     def target(self, step: LoadStep) -> LoadState:
         """The state at the end of ``step``: its values where it gives them, the current ones elsewhere."""
@@ -155,19 +162,25 @@ class LoadState:
             if name not in self.angles:
                 raise InputError(f"step {step.label!r} moves {name!r}, which is not a motion of the problem "
                                  f"(motions: {sorted(self.angles)})")
+        for name in step.factors:
+            if name not in self.factors:
+                raise InputError(f"step {step.label!r} sets the factor of {name!r}, which is not a load of the "
+                                 f"problem (loads: {sorted(self.factors)})")
         return LoadState(gravity=self.gravity if step.gravity is None else float(step.gravity),
                       angles={**self.angles, **{k: float(v) for k, v in step.angles.items()}},
                       translations={**self.translations,
-                                    **{k: np.asarray(v, dtype=float).reshape(3) for k, v in step.translations.items()}})
+                                    **{k: np.asarray(v, dtype=float).reshape(3) for k, v in step.translations.items()}},
+                      factors={**self.factors, **{k: float(v) for k, v in step.factors.items()}})
 
     def towards(self, other: LoadState, s: float) -> LoadState:
         """``(1 - s) self + s other``."""
         return LoadState(gravity=(1 - s) * self.gravity + s * other.gravity,
                       angles={k: (1 - s) * a + s * other.angles[k] for k, a in self.angles.items()},
-                      translations={k: (1 - s) * t + s * other.translations[k] for k, t in self.translations.items()})
+                      translations={k: (1 - s) * t + s * other.translations[k] for k, t in self.translations.items()},
+                      factors={k: (1 - s) * f + s * other.factors[k] for k, f in self.factors.items()})
 
     def __eq__(self, other) -> bool:
-        return (self.gravity == other.gravity and self.angles == other.angles
+        return (self.gravity == other.gravity and self.angles == other.angles and self.factors == other.factors
                 and all(np.array_equal(t, other.translations[k]) for k, t in self.translations.items()))
 
 
@@ -192,6 +205,9 @@ class ElasticityProblem:
         Full gravity vector (m/s²); its factor starts at 0 and is set by :class:`LoadStep`.
     motions
         Prescribed rigid motions (clamps, servo horns), with distinct names; all start at rest.
+    loads
+        External loads (:mod:`fenicsfoam.loads`: tractions, forces, follower pressures, cables), with distinct
+        names; every factor starts at 0. None: no load term is built.
     prefix
         PETSc options prefix of this problem's SNES (and its KSP, PC); must be non-empty and end with ``_``.
     options
@@ -210,7 +226,7 @@ class ElasticityProblem:
 
     def __init__(self, mesh: Mesh, material: MaterialField, *, orientation: fem.Function | None = None,
                  model: str | Model = "corotational", degree: int = 1, gravity: Sequence[float] = (0.0, 0.0, -9.81),
-                 motions: Sequence[RigidMotion] = (), prefix: str = "elasticity_",
+                 motions: Sequence[RigidMotion] = (), loads: Sequence[Load] = (), prefix: str = "elasticity_",
                  options: Mapping[str, Any] | None = None, quadrature_degree: int | None = None,
                  max_cutbacks: int = 6):
         model = as_model(model)
@@ -223,6 +239,9 @@ class ElasticityProblem:
         names = [m.name for m in motions]
         if len(set(names)) != len(names):
             raise InputError(f"motion names must be distinct, got {names}")
+        load_names = [load.name for load in loads]
+        if len(set(load_names)) != len(load_names):
+            raise InputError(f"load names must be distinct, got {load_names}")
         if not prefix or not prefix.endswith("_"):
             raise InputError(f"the options prefix must be non-empty and end with '_', got {prefix!r}")
         self.model, self.degree, self.max_cutbacks = model, degree, max_cutbacks
@@ -241,6 +260,16 @@ class ElasticityProblem:
         dx_stress = ufl.dx(metadata={"quadrature_degree": self.quadrature_degree})
         residual = (ufl.inner(P, ufl.grad(v)) * dx_stress
                     - material.rho * ufl.inner(self._body_acceleration, v) * ufl.dx)
+        #: the external loads by name, and their current factors (UFL loads: a Constant each)
+        self.external = {load.name: load for load in loads}
+        self._factors = {}
+        for load in loads:
+            load.setup(self.V)
+            self._factors[load.name] = factor = fem.Constant(mesh, 0.0)
+            term = load.residual(self.u, v, factor, model.finite_strain)
+            if term is not None:
+                residual += term
+        self._cables = [load for load in loads if hasattr(load, "add_jacobian")]
         self._residual = fem.form(residual)
         jacobian = ufl.derivative(residual, self.u, du)
         dP = model.rotation_tangent(self.u, du, material, orientation, self.rotation)
@@ -253,7 +282,7 @@ class ElasticityProblem:
         self._bcs = [m.bc for m in self.motions.values()]
         #: the current load state (gravity factor, motion angles and translations); all zero at the start
         self.loads = LoadState(gravity=0.0, angles=dict.fromkeys(names, 0.0),
-                               translations={n: np.zeros(3) for n in names})
+                               translations={n: np.zeros(3) for n in names}, factors=dict.fromkeys(load_names, 0.0))
 
         self._b = create_vector(self._residual)
         self._x = self.u.vector.duplicate()  # SNES iterate: never u's own storage, which trial points overwrite
@@ -264,7 +293,13 @@ class ElasticityProblem:
         db = PETSc.Options()
         # Options already in the database (the command line) win over ours.
         self._options = {prefix + key: value for key, value in options.items() if not db.hasName(prefix + key)}
-        self._A = create_matrix(self._jacobian, self._matrix_type(prefix))
+        if self._cables:  # a cable couples the nodes of its via points: entries outside the form's pattern
+            constrained = self._constrained_global_nodes()
+            for cable in self._cables:
+                cable.set_constrained(constrained)
+            self._A = self._create_matrix_with_cables(self._matrix_type(prefix))
+        else:
+            self._A = create_matrix(self._jacobian, self._matrix_type(prefix))
         self._A.setNearNullSpace(rigid_body_modes(self.V))
         self._bc_scale = self._mean_diagonal_stiffness()
         self._snes = self._create_snes(prefix)
@@ -409,6 +444,65 @@ class ElasticityProblem:
         if self.rotation is not None:
             self.rotation.update()
 
+    def _constrained_global_nodes(self) -> np.ndarray:
+        """Global numbers of every node a motion prescribes (on every rank)."""
+        index_map = self.V.dofmap.index_map
+        local = [m.dofs[m.dofs < index_map.size_local] for m in self.motions.values()]
+        local = np.unique(np.concatenate(local)) if local else np.empty(0, dtype=np.int32)
+        owned = index_map.local_to_global(local.astype(np.int32)) if local.size else np.empty(0, dtype=np.int64)
+        return np.unique(np.concatenate([np.asarray(g, dtype=np.int64) for g in self.V.mesh.comm.allgather(owned)]))
+
+    def _create_matrix_with_cables(self, matrix_type: str) -> PETSc.Mat:
+        """The Jacobian's matrix, preallocated for the form's sparsity pattern and the cables' couplings.
+
+        As ``dolfinx.fem.petsc.create_matrix`` (block size 3, the dofmap's local-to-global map), with every row of a
+        cable's via nodes also holding the nodes it couples to (possibly on other ranks), so that no insertion
+        reallocates the matrix.
+        """
+        index_map = self.V.dofmap.index_map
+        n_owned, bs = index_map.size_local, self.V.dofmap.index_map_bs
+        pattern = fem.create_sparsity_pattern(self._jacobian)
+        pattern.assemble()
+        graph = pattern.graph
+        offsets, columns = graph.offsets, graph.array
+        column_map = pattern.column_index_map()  # the dofmap's ghosts and the pattern's extra ones
+        column_to_global = column_map.local_to_global(np.arange(column_map.size_local + column_map.num_ghosts,
+                                                                dtype=np.int32))
+        local_to_global = index_map.local_to_global(np.arange(n_owned + index_map.num_ghosts, dtype=np.int32))
+        columns_of = {}  # owned row → the global columns of the form's pattern, for rows the cables touch
+        extra: dict[int, set] = {}
+        for cable in self._cables:
+            for row, cols in cable.coupling().items():
+                extra.setdefault(row, set()).update(cols.tolist())
+        lo = index_map.local_range[0]
+        d_nnz = np.diff(offsets)[:n_owned].astype(PETSc.IntType)
+        in_diag = (columns < n_owned).astype(np.int64)
+        d_counts = np.add.reduceat(in_diag, offsets[:-1])[:n_owned] if columns.size else np.zeros(n_owned, int)
+        o_nnz = (d_nnz - d_counts).astype(PETSc.IntType)
+        d_nnz = d_counts.astype(PETSc.IntType)
+        hi = lo + n_owned
+        for row, cols in extra.items():
+            local = row - lo
+            columns_of[local] = set(column_to_global[columns[offsets[local]:offsets[local + 1]]].tolist())
+            new = np.array(sorted(cols - columns_of[local]), dtype=np.int64)
+            d_nnz[local] += int(np.count_nonzero((new >= lo) & (new < hi)))
+            o_nnz[local] += int(np.count_nonzero((new < lo) | (new >= hi)))
+        A = PETSc.Mat().create(self.V.mesh.comm)
+        A.setSizes(((n_owned * bs, index_map.size_global * bs),) * 2, bsize=bs)
+        A.setType(matrix_type)
+        if matrix_type.endswith("baij"):
+            A.setPreallocationNNZ((d_nnz, o_nnz))
+        else:
+            A.setPreallocationNNZ((np.repeat(bs * d_nnz, bs), np.repeat(bs * o_nnz, bs)))
+        lgmap = PETSc.LGMap().create(local_to_global.astype(PETSc.IntType), bsize=bs, comm=self.V.mesh.comm)
+        A.setLGMap(lgmap, lgmap)
+        A.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
+        return A
+
+    def _add_cables(self, b: PETSc.Vec) -> None:
+        for cable in self._cables:
+            cable.add_residual(b, self.u, self.loads_now[cable.name], self.model.finite_strain)
+
     def _residual_callback(self, snes: PETSc.SNES, x: PETSc.Vec, b: PETSc.Vec) -> None:
         t0 = time.perf_counter()
         self._sync(x)
@@ -418,6 +512,7 @@ class ElasticityProblem:
         # Lifting reads the iterate's ghost entries: use u's vector, whose ghosts _sync updated (x's are stale).
         apply_lifting(b, [self._jacobian], bcs=[self._bcs], x0=[self.u.vector], scale=-1.0)
         b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        self._add_cables(b)
         set_bc(b, self._bcs, self.u.vector, -self._bc_scale)
         self.timings["residual"] += time.perf_counter() - t0
 
@@ -430,7 +525,26 @@ class ElasticityProblem:
     def _assemble_jacobian(self, A: PETSc.Mat, bcs, diagonal: float) -> None:
         A.zeroEntries()
         assemble_matrix(A, self._jacobian, bcs=bcs, diagonal=diagonal)
+        if self._cables:
+            A.assemblyBegin(PETSc.Mat.AssemblyType.FLUSH)
+            A.assemblyEnd(PETSc.Mat.AssemblyType.FLUSH)
+            for cable in self._cables:
+                cable.add_jacobian(A, self.u, self.loads_now[cable.name], self.model.finite_strain)
         A.assemble()
+
+    def internal_minus_external(self) -> PETSc.Vec:
+        """The assembled ``R(u)`` = internal − external nodal forces at the current ``u`` and loads, no Dirichlet rows.
+
+        At a converged state its entries at prescribed nodes are the reactions (the forces the supports exert on
+        the body); elsewhere they vanish to the solver's tolerance. Owned entries are valid (collective).
+        """
+        b = create_vector(self._residual)
+        with b.localForm() as b_local:
+            b_local.set(0.0)
+        assemble_vector(b, self._residual)
+        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        self._add_cables(b)
+        return b
 
     # ----------------------------------------------------------------------------------------------
     @property
@@ -447,10 +561,17 @@ class ElasticityProblem:
         mesh.comm.Allreduce(local, result, op=MPI.MIN)
         return float(result[0])
 
+    @property
+    def loads_now(self) -> Mapping[str, float]:
+        """The factor of every external load as applied now (during a solve: the increment being tried)."""
+        return {name: float(c.value) for name, c in self._factors.items()}
+
     def _apply_loads(self, loads: LoadState) -> None:
         self._body_acceleration.value[:] = loads.gravity * self._gravity
         for name, motion in self.motions.items():
             motion.set(loads.angles[name], loads.translations[name])
+        for name, factor in self._factors.items():
+            factor.value = loads.factors[name]
 
     def _newton(self) -> tuple[bool, str, int, np.ndarray]:
         """One SNES solve from the current ``u``: (success, reason, iterations, residual history)."""
