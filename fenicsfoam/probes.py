@@ -12,6 +12,19 @@ located), then called on any displacement :class:`dolfinx.fem.Function` of that 
 * :class:`CenterRotation` — Tripod: rotation about the vertical axis of the best-fit rigid rotation of the
   central ring's nodes (degrees, counter-clockwise seen from above (+z) positive).
 
+Probes of any named group (a facet group or a cell region), the scene probes ``"KIND:GROUP"``; vectors are
+numpy arrays of 3 components:
+
+* :class:`MeanDisplacement` — mean displacement of the group (m): ``∫ u dA / ∫ dA`` over a facet group,
+  ``∫ u dX / ∫ dX`` over a cell region (reference measure).
+* :class:`BestFitRotation` — rotation vector of the best-fit rigid rotation of the group's nodes (degrees; its
+  direction the axis, its length the angle, in [0°, 180°]), Kabsch as :class:`CenterRotation`.
+* :class:`EnclosedVolume` — volume enclosed by a closed facet group in the deformed configuration (m³),
+  ``|⅓ ∫ x · n da| = |⅓ ∫ (X + u) · cof(F) N dA|`` (a chamber's volume, for pressure–volume curves).
+* :class:`ReactionForce` — the force the supports exert on a prescribed group (N): the sum of the assembled
+  ``internal − external`` nodal forces of :class:`fenicsfoam.solver.ElasticityProblem` over the group's
+  prescribed nodes.
+
 Every value is summed over ranks (``comm.allreduce``), so all ranks return the same number under ``mpirun``.
 The functions :func:`tip_deflection`, :func:`center_height` and :func:`center_rotation` build the probe and
 call it once, for one-off use.
@@ -32,8 +45,12 @@ from mpi4py import MPI
 from foambase.errors import InputError
 
 __all__ = [
+    "BestFitRotation",
     "CenterHeight",
     "CenterRotation",
+    "EnclosedVolume",
+    "MeanDisplacement",
+    "ReactionForce",
     "TipDeflection",
     "center_height",
     "center_rotation",
@@ -197,7 +214,71 @@ def twist_angle(R: np.ndarray) -> float:
     return math.atan2(s, c)
 
 
-class CenterRotation:
+class _NodeFit:
+    """The owned dof nodes of a group (entities of ``meshtags``' dimension), for a best-fit rotation (Kabsch)."""
+
+    def __init__(self, V: dolfinx.fem.FunctionSpace, meshtags, tags: Tags, kind: str) -> None:
+        _check_displacement_space(V)
+        tags = _check_tags(meshtags, tags, V.mesh, meshtags.dim, kind)
+        self._comm = V.mesh.comm
+        entities = np.concatenate([meshtags.find(tag) for tag in tags])
+        V.mesh.topology.create_connectivity(meshtags.dim, V.mesh.topology.dim)
+        # remote=True (the default) also returns the dofs this rank owns on the group's entities of other ranks.
+        dofs = dolfinx.fem.locate_dofs_topological(V, meshtags.dim, entities, remote=True)
+        self._nodes = dofs[dofs < V.dofmap.index_map.size_local]
+        X = V.tabulate_dof_coordinates()[self._nodes]
+        sums = np.append(X.sum(axis=0), len(self._nodes))
+        total = np.empty_like(sums)
+        self._comm.Allreduce(sums, total, op=MPI.SUM)
+        self.n_nodes = int(total[3])
+        self._X_mean = total[:3] / total[3]
+        self._dX = X - self._X_mean
+        spread = self._allreduce(self._dX.T @ self._dX)
+        if np.linalg.matrix_rank(spread, tol=1e-10 * np.trace(spread)) < 2:
+            raise InputError(f"the {self.n_nodes} nodes of {kind} tag(s) {list(tags)} are collinear: rotation "
+                             "undefined")
+        self._V = V
+
+    def _allreduce(self, local: np.ndarray) -> np.ndarray:
+        total = np.empty_like(local)
+        self._comm.Allreduce(np.ascontiguousarray(local), total, op=MPI.SUM)
+        return total
+
+    def rotation_matrix(self, u: dolfinx.fem.Function) -> np.ndarray:
+        """The best-fit rotation ``R`` (3×3) of the nodes for the displacement ``u``, same on every rank."""
+        _check_same_space(u, self._V)
+        x = self._dX + u.x.array.reshape(-1, 3)[self._nodes]
+        return kabsch_rotation(self._allreduce(self._dX.T @ x))
+
+
+class BestFitRotation(_NodeFit):
+    """Rotation vector (degrees) of the best-fit rigid rotation of a group's nodes.
+
+    The nodes are the dof points of the displacement's Lagrange space on the group's entities (facets of a facet
+    group, cells of a region), owned dofs only, equal weights; ``R`` as :meth:`CenterRotation.rotation_matrix`
+    (Kabsch), returned as its rotation vector ``θ â`` in degrees (``scipy``'s ``as_rotvec``), 0 ≤ θ ≤ 180°.
+
+    Parameters
+    ----------
+    V : dolfinx.fem.FunctionSpace
+        The displacement space (3D vector Lagrange).
+    meshtags : MeshTags
+        Facet tags or cell tags of the mesh.
+    tags : int or sequence of int
+        The group's tag(s).
+
+    """
+
+    def __init__(self, V: dolfinx.fem.FunctionSpace, meshtags, tags: Tags) -> None:
+        super().__init__(V, meshtags, tags, "facet" if meshtags.dim == V.mesh.topology.dim - 1 else "cell")
+
+    def __call__(self, u: dolfinx.fem.Function) -> np.ndarray:
+        """Rotation vector (degrees, 3 components) for the displacement ``u``."""
+        from scipy.spatial.transform import Rotation
+        return Rotation.from_matrix(self.rotation_matrix(u)).as_rotvec(degrees=True)
+
+
+class CenterRotation(_NodeFit):
     """Rotation about the vertical axis of a region's nodes (deg, counter-clockwise seen from +z positive).
 
     The nodes are the dof points of the displacement's Lagrange space on the region's cells (the vertices for
@@ -225,40 +306,153 @@ class CenterRotation:
     """
 
     def __init__(self, V: dolfinx.fem.FunctionSpace, cell_tags, ring_tag: Tags) -> None:
-        _check_displacement_space(V)
-        tdim = V.mesh.topology.dim
-        tags = _check_tags(cell_tags, ring_tag, V.mesh, tdim, "cell")
-        self._comm = V.mesh.comm
-        cells = np.concatenate([cell_tags.find(tag) for tag in tags])
-        # remote=True (the default) also returns the dofs this rank owns on the region's cells of other ranks.
-        dofs = dolfinx.fem.locate_dofs_topological(V, tdim, cells, remote=True)
-        self._nodes = dofs[dofs < V.dofmap.index_map.size_local]
-        X = V.tabulate_dof_coordinates()[self._nodes]
-        sums = np.append(X.sum(axis=0), len(self._nodes))
-        total = np.empty_like(sums)
-        self._comm.Allreduce(sums, total, op=MPI.SUM)
-        self.n_nodes = int(total[3])
-        self._X_mean = total[:3] / total[3]
-        self._dX = X - self._X_mean
-        spread = self._allreduce(self._dX.T @ self._dX)
-        if np.linalg.matrix_rank(spread, tol=1e-10 * np.trace(spread)) < 2:
-            raise InputError(f"the {self.n_nodes} nodes of cell tag(s) {list(tags)} are collinear: rotation undefined")
-        self._V = V
-
-    def _allreduce(self, local: np.ndarray) -> np.ndarray:
-        total = np.empty_like(local)
-        self._comm.Allreduce(np.ascontiguousarray(local), total, op=MPI.SUM)
-        return total
-
-    def rotation_matrix(self, u: dolfinx.fem.Function) -> np.ndarray:
-        """The best-fit rotation ``R`` (3×3) of the nodes for the displacement ``u``, same on every rank."""
-        _check_same_space(u, self._V)
-        x = self._dX + u.x.array.reshape(-1, 3)[self._nodes]
-        return kabsch_rotation(self._allreduce(self._dX.T @ x))
+        if cell_tags.dim != V.mesh.topology.dim:
+            raise InputError(f"cell tags must mark entities of dimension {V.mesh.topology.dim}, got tags of "
+                             f"dimension {cell_tags.dim}")
+        super().__init__(V, cell_tags, ring_tag, "cell")
 
     def __call__(self, u: dolfinx.fem.Function) -> float:
         """Twist about e_z (degrees) of the best-fit rotation for the displacement ``u``."""
         return math.degrees(twist_angle(self.rotation_matrix(u)))
+
+
+class _VectorProbe:
+    """``∫ f(u) dμ`` (components summed over ranks) with its forms compiled once for a private copy of ``u``."""
+
+    def __init__(self, V: dolfinx.fem.FunctionSpace, integrand, measure: ufl.Measure, size: int = 3) -> None:
+        self._u = dolfinx.fem.Function(V)
+        self._comm = V.mesh.comm
+        value = integrand(self._u)
+        self._forms = [dolfinx.fem.form((value[i] if size > 1 else value) * measure) for i in range(size)]
+
+    def _integrals(self, u: dolfinx.fem.Function) -> np.ndarray:
+        V = self._u.function_space
+        _check_same_space(u, V)
+        n_owned = V.dofmap.index_map.size_local * V.dofmap.index_map_bs
+        self._u.x.array[:n_owned] = u.x.array[:n_owned]
+        self._u.x.scatter_forward()
+        local = np.array([dolfinx.fem.assemble_scalar(form) for form in self._forms])
+        total = np.empty(len(local))
+        self._comm.Allreduce(local, total, op=MPI.SUM)
+        return total
+
+
+def _group_measure(V: dolfinx.fem.FunctionSpace, meshtags, tags: Tags) -> tuple[ufl.Measure, tuple[int, ...], str]:
+    """``ds`` over a boundary facet group or ``dx`` over a cell region, by the dimension of ``meshtags``."""
+    tdim = V.mesh.topology.dim
+    if meshtags.dim == tdim - 1:
+        tags = _check_tags(meshtags, tags, V.mesh, tdim - 1, "facet")
+        return ufl.Measure("ds", domain=V.mesh, subdomain_data=meshtags, subdomain_id=tags), tags, "facet"
+    tags = _check_tags(meshtags, tags, V.mesh, tdim, "cell")
+    return ufl.Measure("dx", domain=V.mesh, subdomain_data=meshtags, subdomain_id=tags), tags, "cell"
+
+
+class MeanDisplacement(_VectorProbe):
+    """Mean displacement of a group (m, 3 components): ``∫ u dA / ∫ dA`` (facets) or ``∫ u dX / ∫ dX`` (cells).
+
+    Reference measure; a facet group must lie on the boundary (``ds``).
+    """
+
+    def __init__(self, V: dolfinx.fem.FunctionSpace, meshtags, tags: Tags) -> None:
+        _check_displacement_space(V)
+        measure, tags, kind = _group_measure(V, meshtags, tags)
+        super().__init__(V, lambda u: u, measure)
+        self.size = self._comm.allreduce(
+            dolfinx.fem.assemble_scalar(dolfinx.fem.form(dolfinx.fem.Constant(V.mesh, 1.0) * measure)), op=MPI.SUM)
+        if not self.size > 0:
+            raise InputError(f"{kind} tag(s) {list(tags)} have zero measure"
+                             + (" on the boundary: not a boundary facet group" if kind == "facet" else ""))
+
+    def __call__(self, u: dolfinx.fem.Function) -> np.ndarray:
+        """Mean displacement (m) for ``u``."""
+        return self._integrals(u) / self.size
+
+
+class EnclosedVolume(_VectorProbe):
+    """Volume (m³) enclosed by a closed boundary facet group in the deformed configuration.
+
+    ``V = |⅓ ∫ x · n da| = |⅓ ∫ (X + u) · cof(F) N dA|`` over the reference facets (a cavity's walls, whose outward
+    normal points into the cavity, or a body's outer boundary). The group must be closed: ``|∫ N dA|`` at most
+    1e-6 of its area (else :class:`~foambase.errors.InputError`), where the value does not depend on the origin.
+    """
+
+    #: Largest ``|∫ N dA| / ∫ dA`` accepted for a closed surface.
+    CLOSED_TOL = 1e-6
+
+    def __init__(self, V: dolfinx.fem.FunctionSpace, facet_tags, tags: Tags) -> None:
+        from fenicsfoam.loads import cofactor
+
+        _check_displacement_space(V)
+        tdim = V.mesh.topology.dim
+        tags = _check_tags(facet_tags, tags, V.mesh, tdim - 1, "facet")
+        ds = ufl.Measure("ds", domain=V.mesh, subdomain_data=facet_tags, subdomain_id=tags)
+        N = ufl.FacetNormal(V.mesh)
+        X = ufl.SpatialCoordinate(V.mesh)
+        normal = _VectorProbe(V, lambda u: N, ds)._integrals(dolfinx.fem.Function(V))
+        area = V.mesh.comm.allreduce(
+            dolfinx.fem.assemble_scalar(dolfinx.fem.form(dolfinx.fem.Constant(V.mesh, 1.0) * ds)), op=MPI.SUM)
+        if not area > 0:
+            raise InputError(f"facet tag(s) {list(tags)} have zero area on the boundary: not a boundary facet group")
+        if np.linalg.norm(normal) > self.CLOSED_TOL * area:
+            raise InputError(f"facet tag(s) {list(tags)} do not form a closed surface (|∫ N dA| = "
+                             f"{np.linalg.norm(normal) / area:.3g} of its area): enclosed volume undefined")
+
+        def flux(u):
+            return ufl.inner(X + u, cofactor(ufl.Identity(3) + ufl.grad(u)) * N) / 3.0
+
+        super().__init__(V, flux, ds, size=1)
+
+    def __call__(self, u: dolfinx.fem.Function) -> float:
+        """Enclosed volume (m³) for ``u``."""
+        return float(abs(self._integrals(u)[0]))
+
+
+class ReactionForce:
+    """The force (N, 3 components) the supports exert on a prescribed group, from the residual.
+
+    ``R = Σ_k r_k`` over the group's nodes, ``r`` the assembled internal − external nodal forces of the problem
+    (:meth:`fenicsfoam.solver.ElasticityProblem.internal_minus_external`) at its current state, owned nodes only,
+    summed over ranks. At equilibrium the reactions of all supports balance the applied loads:
+    ``Σ R + ∫ ρ g dX + Σ loads = 0`` (the internal forces sum to zero). The force the body exerts on the support
+    (a blocked force, a load cell's reading) is ``−R``. Nodes shared by two prescribed groups count in both.
+
+    Parameters
+    ----------
+    problem : fenicsfoam.solver.ElasticityProblem
+        The problem whose motions prescribe the group.
+    meshtags : MeshTags
+        Facet tags or cell tags of the mesh.
+    tags : int or sequence of int
+        The group's tag(s); every node of the group must be prescribed by a motion of ``problem``.
+
+    """
+
+    def __init__(self, problem, meshtags, tags: Tags) -> None:
+        V = problem.V
+        kind = "facet" if meshtags.dim == V.mesh.topology.dim - 1 else "cell"
+        tags = _check_tags(meshtags, tags, V.mesh, meshtags.dim, kind)
+        V.mesh.topology.create_connectivity(meshtags.dim, V.mesh.topology.dim)
+        entities = np.concatenate([meshtags.find(tag) for tag in tags])
+        dofs = dolfinx.fem.locate_dofs_topological(V, meshtags.dim, entities, remote=True)
+        self._nodes = dofs[dofs < V.dofmap.index_map.size_local]
+        prescribed = np.concatenate([m.dofs for m in problem.motions.values()]) if problem.motions else np.empty(0)
+        free = int(np.count_nonzero(~np.isin(self._nodes, prescribed)))
+        free = V.mesh.comm.allreduce(free, op=MPI.SUM)
+        if free:
+            raise InputError(f"{free} node(s) of {kind} tag(s) {list(tags)} are not prescribed: a reaction force is "
+                             "defined on clamped or moved groups only")
+        self._problem, self._comm = problem, V.mesh.comm
+
+    def __call__(self, u: dolfinx.fem.Function | None = None) -> np.ndarray:
+        """The reaction (N) at the problem's current state (``u`` must be the problem's displacement, or None)."""
+        if u is not None and u is not self._problem.u:
+            raise InputError("ReactionForce reads the problem's own state: pass problem.u or nothing")
+        b = self._problem.internal_minus_external()
+        local = b.array.reshape(-1, 3)[self._nodes].sum(axis=0)
+        b.destroy()
+        total = np.empty(3)
+        self._comm.Allreduce(np.ascontiguousarray(local), total, op=MPI.SUM)
+        return total
 
 
 def tip_deflection(u: dolfinx.fem.Function, facet_tags, tip_tag: int, direction: Sequence[float]) -> float:
