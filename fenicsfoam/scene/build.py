@@ -28,7 +28,7 @@ from fenicsfoam import materials as _materials
 from fenicsfoam import orientation as orient
 from fenicsfoam.constitutive import MaterialField
 from fenicsfoam.materials import Isotropic, TransverseIsotropic
-from fenicsfoam.scene.kinds import LOAD_KINDS, PROBE_KINDS, BuildContext
+from fenicsfoam.scene.kinds import GROUP_PROBE_KINDS, LOAD_KINDS, PROBE_KINDS, BuildContext
 from fenicsfoam.scene.schema import PETSC_PREFIX, Region, Scene
 from fenicsfoam.scene.table import SceneError, key_error
 from fenicsfoam.solver import ElasticityProblem, LoadStep
@@ -156,6 +156,16 @@ def _mesh_beam(comm, params: dict[str, Any]):
     return make_beam(comm, **params)
 
 
+def _mesh_finger(comm, params: dict[str, Any]):
+    from meshes.finger import FingerGeometry, make_finger
+    h, order = params.pop("h"), params.pop("order")
+    try:
+        geometry = FingerGeometry(**params)
+    except ValueError as exc:
+        raise SceneError(f"geometry: {exc}") from exc
+    return make_finger(comm, h, geometry, order)
+
+
 def _mesh_tripod(comm, params: dict[str, Any]):
     from meshes.tripod import TripodGeometry, make_tripod
     h, order = params.pop("h"), params.pop("order")
@@ -167,7 +177,8 @@ def _mesh_tripod(comm, params: dict[str, Any]):
 
 
 #: Geometry builders: ``[geometry] builder`` → function(comm, parameters) of the tagged mesh.
-MESHERS: dict[str, Callable] = {"file": _mesh_file, "beam": _mesh_beam, "tripod": _mesh_tripod}
+MESHERS: dict[str, Callable] = {"file": _mesh_file, "beam": _mesh_beam, "tripod": _mesh_tripod,
+                                "finger": _mesh_finger}
 
 
 def _build_mesh(scene: Scene, comm):
@@ -185,11 +196,15 @@ def _build_mesh(scene: Scene, comm):
 # The model
 # --------------------------------------------------------------------------------------------------
 def load_steps(scene: Scene) -> list[LoadStep]:
-    """The scene's schedule as solver load steps (servo angles in radians)."""
-    return [LoadStep(s.label, gravity=s.gravity, increments=s.increments,
-                     angles={} if s.servo_deg is None else
-                     {f"servo{i}": math.radians(angle) for i, angle in enumerate(s.servo_deg)})
-            for s in scene.steps]
+    """The scene's schedule as solver load steps (angles in radians)."""
+    steps = []
+    for s in scene.steps:
+        angles = {} if s.servo_deg is None else {f"servo{i}": math.radians(a) for i, a in enumerate(s.servo_deg)}
+        angles.update({name: math.radians(m["angle_deg"]) for name, m in s.motions.items() if "angle_deg" in m})
+        translations = {name: m["translation"] for name, m in s.motions.items() if "translation" in m}
+        steps.append(LoadStep(s.label, gravity=s.gravity, increments=s.increments, angles=angles,
+                              translations=translations, factors=dict(s.loads)))
+    return steps
 
 
 def build_model(scene: Scene, comm) -> Model:
@@ -203,10 +218,26 @@ def build_model(scene: Scene, comm) -> Model:
     a = _build_orientation(scene, mesh, cell_tags)
     context = BuildContext(scene, tagged)
     motions = [m for key, kind in LOAD_KINDS.items() for m in kind.motions(scene.loads[key], context)]
+    try:
+        loads = [load for key, kind in LOAD_KINDS.items() for load in kind.external(scene.loads[key], context)]
+    except InputError as exc:
+        raise SceneError(f"loads: {exc}") from exc
     gravity = (0.0, 0.0, 0.0) if scene.gravity is None else scene.gravity
     problem = ElasticityProblem(mesh, field, orientation=a, model=scene.model, degree=scene.degree,
-                                gravity=gravity, motions=motions, prefix=PETSC_PREFIX, options=dict(scene.petsc))
-    context = BuildContext(scene, tagged, problem.V)
-    probes = {name: PROBE_KINDS[name].build(context) for name in scene.probes}
+                                gravity=gravity, motions=motions, loads=loads, prefix=PETSC_PREFIX,
+                                options=dict(scene.petsc))
+    context = BuildContext(scene, tagged, problem.V, problem)
+    probes = {}
+    for name in scene.probes:
+        try:
+            if name in scene.probe_groups:
+                kind = GROUP_PROBE_KINDS[name.partition(":")[0]]
+                probes[name] = kind.build(context, scene.probe_groups[name])
+            else:
+                probes[name] = PROBE_KINDS[name].build(context)
+        except InputError as exc:
+            if isinstance(exc, SceneError):
+                raise
+            raise SceneError(f"probes: {name!r}: {exc}") from exc
     return Model(tagged, problem, a, probes, load_steps(scene),
                  {region.name: _material_record(resolved[region.name]) for region in scene.regions})

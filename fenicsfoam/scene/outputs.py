@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from fenicsfoam.scene.kinds import PROBE_UNITS
+from fenicsfoam.scene.kinds import probe_size, probe_unit
 from fenicsfoam.scene.schema import LABEL_PATTERN, Scene
 from foambase.errors import InputError
 from foambase.files import TEMPORARY, check_output_dir, write_json_atomic, write_text_atomic
@@ -56,10 +56,10 @@ _XDMF_TEMPORARY = ".solution."
 
 @dataclass
 class StepResult:
-    """One load step: probe values (SI, angles in degrees) and solver statistics."""
+    """One load step: probe values (SI, angles in degrees; vectors as lists of 3) and solver statistics."""
 
     label: str
-    probes: dict[str, float]
+    probes: dict[str, float | list[float]]
     newton_iterations: int
     increments: int
     cutbacks: int
@@ -90,31 +90,49 @@ class SceneResult:
     status: str = "incomplete"
     #: the files written into ``out_dir`` (names)
     files: list[str] = field(default_factory=list)
+    #: the displacement (a ``dolfinx.fem.Function``) at the end of the last step done; its ``function_space.mesh``
+    #: is the mesh (not pickled with the result)
+    displacement: Any = field(default=None, repr=False, compare=False)
 
-    def probe(self, name: str, relative_to: str | None = None) -> dict[str, float]:
-        """``{step label: value}`` of a probe, minus its value at step ``relative_to`` if given."""
+    def probe(self, name: str, relative_to: str | None = None) -> dict[str, float | list[float]]:
+        """``{step label: value}`` of a probe, minus its value at step ``relative_to`` if given (vectors: lists)."""
         values = {s.label: s.probes[name] for s in self.steps}
-        base = 0.0 if relative_to is None else values[relative_to]
+        if relative_to is None:
+            return values
+        base = values[relative_to]
+        if isinstance(base, list):
+            return {label: [a - b for a, b in zip(v, base)] for label, v in values.items()}
         return {label: v - base for label, v in values.items()}
 
     def summary(self) -> dict[str, Any]:
         """The ``summary.json`` content: scene as read, steps with probes, sizes, timings, materials, errors."""
         return {"status": self.status, "scene": dict(self.scene.raw), "steps": [s.to_dict() for s in self.steps],
                 "wall_s": self.wall_s, "n_cells": self.n_cells, "n_dofs": self.n_dofs, "n_ranks": self.n_ranks,
-                "probe_units": {p: PROBE_UNITS[p] for p in self.scene.probes}, "materials": self.materials,
+                "probe_units": {p: probe_unit(p) for p in self.scene.probes}, "materials": self.materials,
                 "model": self.scene.model, "degree": self.scene.degree, "error": self.error,
                 "failure": self.failure, "files": list(self.files)}
 
     def table(self) -> str:
-        """Probes per step (lengths in mm, angles in degrees), Newton iterations and wall time."""
-        scale = {"m": 1e3, "deg": 1.0}
-        unit = {"m": "mm", "deg": "deg"}
-        names = list(self.scene.probes)
-        head = f"{'step':>10s} " + " ".join(f"{n + ' (' + unit[PROBE_UNITS[n]] + ')':>22s}" for n in names)
+        """Probes per step, Newton iterations and wall time.
+
+        Lengths in mm, volumes in cm³, forces in N, angles in degrees; vectors as x, y, z columns.
+        """
+        scale = {"m": 1e3, "deg": 1.0, "N": 1.0, "m3": 1e6}
+        unit = {"m": "mm", "deg": "deg", "N": "N", "m3": "cm3"}
+        columns = []  # (heading, probe, component or None, scale)
+        for n in self.scene.probes:
+            u = probe_unit(n)
+            if probe_size(n) == 1:
+                columns.append((f"{n} ({unit[u]})", n, None, scale[u]))
+            else:
+                columns += [(f"{n} {c} ({unit[u]})", n, i, scale[u]) for i, c in enumerate("xyz")]
+        width = max([22, *(len(c[0]) for c in columns)])
+        head = f"{'step':>10s} " + " ".join(f"{c[0]:>{width}s}" for c in columns)
         lines = [f"scene {self.scene.name}: {self.n_cells} cells, {self.n_dofs} dofs, {self.n_ranks} rank(s), "
                  f"{self.wall_s:.1f} s", head + f" {'Newton':>7s} {'wall (s)':>9s}"]
         for s in self.steps:
-            values = " ".join(f"{s.probes[n] * scale[PROBE_UNITS[n]]:22.4f}" for n in names)
+            values = " ".join(f"{(s.probes[n] if i is None else s.probes[n][i]) * k:{width}.4f}"
+                              for _, n, i, k in columns)
             lines.append(f"{s.label:>10s} {values} {s.newton_iterations:7d} {s.wall_s:9.2f}")
         if self.error:
             lines.append(f"{self.status.upper()}: {self.error}")
@@ -122,12 +140,19 @@ class SceneResult:
 
 
 def _probes_csv(result: SceneResult) -> str:
+    """One row per step; a vector probe in three columns ``KIND:GROUP_x_UNIT``, ``_y_``, ``_z_``."""
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
-    writer.writerow(["step", *(f"{p}_{PROBE_UNITS[p]}" for p in result.scene.probes), "newton_iterations", "wall_s"])
+    names = []
+    for p in result.scene.probes:
+        unit = probe_unit(p)
+        names += [f"{p}_{unit}"] if probe_size(p) == 1 else [f"{p}_{c}_{unit}" for c in "xyz"]
+    writer.writerow(["step", *names, "newton_iterations", "wall_s"])
     for s in result.steps:
-        writer.writerow([s.label, *(repr(s.probes[p]) for p in result.scene.probes), s.newton_iterations,
-                         repr(s.wall_s)])
+        values = []
+        for p in result.scene.probes:
+            values += [repr(s.probes[p])] if probe_size(p) == 1 else [repr(v) for v in s.probes[p]]
+        writer.writerow([s.label, *values, s.newton_iterations, repr(s.wall_s)])
     return buffer.getvalue()
 
 

@@ -63,6 +63,13 @@ def _interruption(exc: BaseException, step: str | None, done: int, total: int) -
     return f"{what}{where} ({done} of {total} steps done)"
 
 
+def _value(value: Any) -> float | list[float]:
+    """A probe's value for JSON: a float, or a list of floats for a vector."""
+    if isinstance(value, list | tuple) or getattr(value, "ndim", 0):
+        return [float(v) for v in value]
+    return float(value)
+
+
 def run_scene(source: str | os.PathLike | Mapping[str, Any] | Scene, out_dir: str | os.PathLike | None = None, *,
               comm=None) -> SceneResult:
     """Build a scene, run its load schedule, evaluate its probes after every step and write its outputs.
@@ -131,7 +138,7 @@ def run_scene(source: str | os.PathLike | Mapping[str, Any] | Scene, out_dir: st
                 break
             if index == 0:
                 _check_deferred_options(problem)
-            result.steps.append(StepResult(step.label, {n: float(p(problem.u)) for n, p in model.probes.items()},
+            result.steps.append(StepResult(step.label, {n: _value(p(problem.u)) for n, p in model.probes.items()},
                                            stats.newton_iterations, stats.increments, stats.cutbacks,
                                            stats.min_det_F, stats.wall_s))
             current = None
@@ -161,6 +168,7 @@ def run_scene(source: str | os.PathLike | Mapping[str, Any] | Scene, out_dir: st
                           else f"{type(exc).__name__}: {exc}" if not isinstance(exc, SceneError) else str(exc))
         raise
     result.wall_s = comm.allreduce(time.perf_counter() - start, op=MPI.MAX)
+    result.displacement = problem.u
     if folder is not None:
         folder.finish(result, "failed" if failure is not None else "complete")
     if failure is not None:

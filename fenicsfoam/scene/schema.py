@@ -14,13 +14,13 @@ import os
 import re
 import tomllib
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from fenicsfoam.materials import FOAM_FITS
 from fenicsfoam.orientation import HANDEDNESS
-from fenicsfoam.scene.kinds import LOAD_KINDS, PROBE_KINDS, MeshInfo
+from fenicsfoam.scene.kinds import GROUP_PROBE_KINDS, LOAD_KINDS, PROBE_KINDS, MeshInfo
 from fenicsfoam.scene.table import SceneError, _Table, _tags, _type_name, _vector
 
 __all__ = ["LABEL_PATTERN", "RESERVED_NAMES", "Region", "Scene", "Step", "load_scene", "parse_scene"]
@@ -71,12 +71,15 @@ class Region:
 
 @dataclass(frozen=True)
 class Step:
-    """A load step of the schedule: gravity factor, horn angles (degrees), increments."""
+    """A load step of the schedule: gravity factor, horn angles (degrees), increments, load factors, motions."""
 
     label: str
     gravity: float | None
     servo_deg: tuple[float, float, float] | None
     increments: int
+    loads: Mapping[str, float] = field(default_factory=dict)   #: factor per named load
+    #: per named motion: ``{"angle_deg": float, "translation": (tx, ty, tz)}`` (either may be absent)
+    motions: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -98,6 +101,8 @@ class Scene:
     probes: tuple[str, ...]
     xdmf: bool
     png: tuple[str, ...]              #: labels of the steps pictured (the orientation is pictured with any)
+    #: the group (:class:`fenicsfoam.scene.kinds.Group`) of each ``"KIND:GROUP"`` probe
+    probe_groups: Mapping[str, Any] = field(default_factory=dict)
 
     @property
     def gravity(self) -> tuple[float, float, float] | None:
@@ -120,11 +125,17 @@ class Scene:
 # --------------------------------------------------------------------------------------------------
 def _builder_info(builder: str) -> tuple[dict[str, Any], dict[str, tuple[int, ...]], dict[str, tuple[int, ...]]]:
     """Defaults of the builder's parameters, its named cell regions and named facet groups."""
+    from dataclasses import fields
+
     if builder == "beam":
         from meshes.beam import BEAM_VOLUME, CLAMPED_FACE, FIG6_BEAM, TIP_FACE
         return ({**FIG6_BEAM, "order": 1}, {"beam": (BEAM_VOLUME,)},
                 {"clamped": (CLAMPED_FACE,), "tip": (TIP_FACE,)})
-    from dataclasses import fields
+    if builder == "finger":
+        from meshes.finger import CELL_TAGS, FACET_TAGS, FingerGeometry
+        facets = {name: (tag,) for name, tag in FACET_TAGS.items()}
+        return ({"h": 0.003, "order": 1, **{f.name: f.default for f in fields(FingerGeometry)}},
+                {name: (tag,) for name, tag in CELL_TAGS.items()}, facets)
 
     from meshes.tripod import PAPER_H, REGIONS, TripodGeometry
     defaults = {f.name: f.default for f in fields(TripodGeometry)}
@@ -151,13 +162,15 @@ def _read_mesh_file(geometry: _Table, base: Path | None) -> MeshInfo:
 
 def _read_geometry(scene: _Table, base: Path | None) -> MeshInfo:
     geometry = scene.table("geometry", required=True)
-    builder = geometry.string("builder", required=True, choices=("beam", "tripod", "file"))
+    builder = geometry.string("builder", required=True, choices=("beam", "tripod", "finger", "file"))
     if builder == "file":
         return _read_mesh_file(geometry, base)
     defaults, regions, facets = _builder_info(builder)
     params = {}
     for key, default in defaults.items():
-        if key == "order":
+        if isinstance(default, bool):
+            params[key] = geometry.boolean(key, default)
+        elif key == "order":
             params[key] = geometry.integer(key, default=default, choices=(1, 2))
         elif key == "pivot_z":
             params[key] = geometry.number(key, default=default)
@@ -166,6 +179,8 @@ def _read_geometry(scene: _Table, base: Path | None) -> MeshInfo:
         else:
             params[key] = geometry.number(key, default=default, check=lambda v: v > 0, valid="a length > 0 (m)")
     geometry.done()
+    if builder == "finger" and not params["chamber"]:
+        facets = {name: tags for name, tags in facets.items() if name != "chamber"}
     return MeshInfo(builder, params, regions, facets, frozenset().union(*regions.values()),
                     frozenset().union(*facets.values()))
 
@@ -276,11 +291,64 @@ def _read_orientation(scene: _Table, mesh: MeshInfo) -> dict[str, Any] | None:
 
 
 def _read_loads(scene: _Table, mesh: MeshInfo) -> dict[str, Any]:
-    """``[loads]``: one value per load kind (:data:`~fenicsfoam.scene.kinds.LOAD_KINDS`)."""
+    """``[loads]``: one value per load kind (:data:`~fenicsfoam.scene.kinds.LOAD_KINDS`); named loads distinct."""
     table = scene.table("loads") or _Table({}, "loads")
     loads = {key: kind.read(table, key, mesh) for key, kind in LOAD_KINDS.items()}
     table.done()
+    seen: dict[str, str] = {}
+    for key in [*(k for k, kind in LOAD_KINDS.items() if kind.named), "motion"]:
+        for name in loads[key]:
+            if name in seen:
+                raise SceneError(f"loads.{key}.{name}: the name {name!r} is already used by loads.{seen[name]}.{name} "
+                                 "(the steps refer to loads and motions by name)")
+            seen[name] = key
     return loads
+
+
+def _named_loads(loads: Mapping[str, Any]) -> dict[str, str]:
+    """Name → kind of every load the steps scale (``loads = {NAME = factor}``)."""
+    return {name: key for key, kind in LOAD_KINDS.items() if kind.named for name in loads[key]}
+
+
+def _read_step_loads(table: _Table, loads: Mapping[str, Any]) -> dict[str, float]:
+    """``loads = {NAME = factor}``: factors of named loads (a cable's ≥ 0)."""
+    factors = table.table("loads")
+    if factors is None:
+        return {}
+    named = _named_loads(loads)
+    result = {}
+    for name in factors.data:
+        if name not in named:
+            raise SceneError(f"{factors.key(name)}: no load named {name!r}; declared loads: "
+                             f"{', '.join(sorted(named)) or 'none'} ([loads.force|traction|pressure|cable.NAME])")
+        if named[name] == "cable":
+            result[name] = factors.number(name, check=lambda v: v >= 0,
+                                          valid="a factor >= 0 of the cable's tension (a cable cannot push)")
+        else:
+            result[name] = factors.number(name)
+    factors.done()
+    return result
+
+
+def _read_step_motions(table: _Table, loads: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
+    """``motions = {NAME = {angle_deg = a, translation = [tx, ty, tz]}}`` of named motions."""
+    motions = table.table("motions")
+    if motions is None:
+        return {}
+    result = {}
+    for name in list(motions.data):
+        if name not in loads["motion"]:
+            raise SceneError(f"{motions.key(name)}: no motion named {name!r}; declared motions: "
+                             f"{', '.join(sorted(loads['motion'])) or 'none'} ([loads.motion.NAME])")
+        motion = motions.table(name)
+        values = {"angle_deg": motion.number("angle_deg"), "translation": motion.vector("translation", 3)}
+        motion.done()
+        result[name] = {k: v for k, v in values.items() if v is not None}
+        if not result[name]:
+            raise SceneError(f"{motions.key(name)}: give angle_deg (degrees) and/or translation ([tx, ty, tz], m)")
+    motions.done()
+    return result
+
 
 
 def _read_label(table: _Table) -> str:
@@ -296,7 +364,8 @@ def _read_label(table: _Table) -> str:
     return label
 
 
-def _read_step(table: _Table, servos: bool) -> Step:
+def _read_step(table: _Table, loads: Mapping[str, Any]) -> Step:
+    servos = loads["servos"]
     label = _read_label(table)
     gravity = table.number("gravity", check=lambda v: v >= 0, valid="a load factor >= 0 (1: full gravity)")
     servo = table.raw("servo_deg")
@@ -309,8 +378,10 @@ def _read_step(table: _Table, servos: bool) -> Step:
         else:
             servo = _vector(servo, 3, table.key("servo_deg"))
     increments = table.integer("increments", default=1, minimum=1)
+    factors = _read_step_loads(table, loads)
+    motions = _read_step_motions(table, loads)
     table.done()
-    return Step(label, gravity, servo, increments)
+    return Step(label, gravity, servo, increments, factors, motions)
 
 
 def _read_steps(scene: _Table, loads: Mapping[str, Any]) -> tuple[Step, ...]:
@@ -318,7 +389,7 @@ def _read_steps(scene: _Table, loads: Mapping[str, Any]) -> tuple[Step, ...]:
     value = scene.raw("steps", required=True)
     if not isinstance(value, list) or not value:
         raise SceneError(f"steps: expected a non-empty array of tables ([[steps]]), got {_type_name(value)}")
-    steps = tuple(_read_step(_Table(s, f"steps[{i}]"), loads["servos"]) for i, s in enumerate(value))
+    steps = tuple(_read_step(_Table(s, f"steps[{i}]"), loads) for i, s in enumerate(value))
     seen: dict[str, str] = {}
     for i, step in enumerate(steps):  # distinct even without case: case-insensitive file systems
         other = seen.setdefault(step.label.lower(), step.label)
@@ -330,16 +401,29 @@ def _read_steps(scene: _Table, loads: Mapping[str, Any]) -> tuple[Step, ...]:
     return steps
 
 
-def _read_probes(scene: _Table, mesh: MeshInfo, loads: Mapping[str, Any]) -> tuple[str, ...]:
-    """``probes``: names of :data:`~fenicsfoam.scene.kinds.PROBE_KINDS` the mesh can provide."""
+def _read_probes(scene: _Table, mesh: MeshInfo, loads: Mapping[str, Any]) -> tuple[tuple[str, ...], dict]:
+    """``probes``: the listed probes that the mesh can provide; returns the names and the group probes' groups.
+
+    A name is an entry of :data:`~fenicsfoam.scene.kinds.PROBE_KINDS`, or ``"KIND:GROUP"`` with ``KIND`` an entry of
+    :data:`~fenicsfoam.scene.kinds.GROUP_PROBE_KINDS`.
+    """
     value = scene.raw("probes", default=[])
     if not isinstance(value, list) or not all(isinstance(p, str) for p in value):
         raise SceneError(f"probes: expected an array of probe names, got {_type_name(value)} {value!r}")
+    groups = {}
     for probe in value:
+        if ":" in probe:
+            kind, _, group = probe.partition(":")
+            if kind not in GROUP_PROBE_KINDS:
+                raise SceneError(f"probes: unknown probe kind {kind!r} in {probe!r}; valid: "
+                                 f"{', '.join(k + ':GROUP' for k in GROUP_PROBE_KINDS)}")
+            groups[probe] = GROUP_PROBE_KINDS[kind].check(probe, group, mesh, loads)
+            continue
         if probe not in PROBE_KINDS:
-            raise SceneError(f"probes: unknown probe {probe!r}; valid: {', '.join(PROBE_KINDS)}")
+            raise SceneError(f"probes: unknown probe {probe!r}; valid: {', '.join(PROBE_KINDS)}, or "
+                             f"{', '.join(k + ':GROUP' for k in GROUP_PROBE_KINDS)}")
         PROBE_KINDS[probe].check(probe, mesh, loads)
-    return tuple(dict.fromkeys(value))
+    return tuple(dict.fromkeys(value)), groups
 
 
 def _read_outputs(scene: _Table, labels: list[str]) -> tuple[bool, tuple[str, ...]]:
@@ -383,12 +467,13 @@ def parse_scene(data: Mapping[str, Any], base: str | os.PathLike | None = None) 
     orientation = _read_orientation(scene, mesh)
     loads = _read_loads(scene, mesh)
     steps = _read_steps(scene, loads)
-    probes = _read_probes(scene, mesh, loads)
+    probes, probe_groups = _read_probes(scene, mesh, loads)
     xdmf, png = _read_outputs(scene, [s.label for s in steps])
     scene.done()
     return Scene(raw=copy.deepcopy(dict(data)), name=name, builder=mesh.builder, geometry=mesh.params,
                  facets=mesh.facets, model=model, degree=degree, petsc=petsc, regions=regions,
-                 orientation=orientation, loads=loads, steps=steps, probes=probes, xdmf=xdmf, png=png)
+                 orientation=orientation, loads=loads, steps=steps, probes=probes, xdmf=xdmf, png=png,
+                 probe_groups=probe_groups)
 
 
 def load_scene(source: str | os.PathLike | Mapping[str, Any]) -> Scene:
