@@ -12,6 +12,9 @@ probe kinds their probes (:mod:`fenicsfoam.scene.kinds`). Modelling choices:
   rest = 0°, middle = 19°, top = 38° (Table I is compared as differences from rest). The real robot's
   absolute horn angle at rest is not given by the paper; 0° is the pose where the mesh is undeformed.
 * *Spiral*: :func:`fenicsfoam.orientation.spiral_directions` about the vertical axis through ``center``.
+* *Mesh checks* (:mod:`fenicsfoam.meshcheck`), right after meshing: a warning if the mesh is not metre-sized
+  (smaller than 1 mm or larger than 100 m across), and one if ``degree = 1`` leaves fewer than 3 elements through
+  the thinnest dimension (P1 locks in bending; ``degree = 2`` is the default).
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ from fenicsfoam import materials as _materials
 from fenicsfoam import orientation as orient
 from fenicsfoam.constitutive import MaterialField
 from fenicsfoam.materials import Isotropic, TransverseIsotropic
+from fenicsfoam.meshcheck import check_degree, check_units, mesh_extent
 from fenicsfoam.scene.kinds import GROUP_PROBE_KINDS, LOAD_KINDS, PROBE_KINDS, BuildContext
 from fenicsfoam.scene.schema import PETSC_PREFIX, Region, Scene
 from fenicsfoam.scene.table import SceneError, key_error
@@ -213,6 +217,9 @@ def build_model(scene: Scene, comm) -> Model:
     _check_orientation(scene, resolved)
     tagged = _build_mesh(scene, comm)
     mesh, cell_tags = tagged.mesh, tagged.cell_tags
+    extent = mesh_extent(mesh)
+    check_units(mesh, extent)
+    check_degree(mesh, scene.degree, extent)
     materials = {tag: resolved[region.name] for region in scene.regions for tag in region.tags}
     field = MaterialField.from_regions(mesh, cell_tags, materials)
     a = _build_orientation(scene, mesh, cell_tags)

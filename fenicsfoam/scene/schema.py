@@ -191,7 +191,7 @@ def _read_fem(scene: _Table) -> tuple[str, int, dict[str, Any]]:
 
     fem = scene.table("fem") or _Table({}, "fem")
     model = fem.string("model", default="corotational", choices=tuple(MODELS))
-    degree = fem.integer("degree", default=1, choices=(1, 2))
+    degree = fem.integer("degree", default=2, choices=(1, 2))
     petsc = fem.table("petsc")
     options = {}
     if petsc is not None:
