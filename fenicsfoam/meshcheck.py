@@ -7,9 +7,10 @@
   bound is 10 m, not more, so that a 10–100 mm robot drawn in millimetres (10–100 units across) is caught too.
 * :func:`elements_through_thickness` and :func:`check_degree` — linear (P1) tetrahedra are far too stiff in bending
   when only a few of them span the thinnest dimension (shear locking). The thinnest dimension is the smallest extent
-  of the vertex cloud along the coordinate axes or along its principal axes (so a rotated plate is measured through
-  its thickness), divided by the mean edge length. With ``degree = 1`` and fewer than :data:`MIN_P1_LAYERS` elements through it, a warning
-  recommends ``degree = 2``. The estimate sees the body's overall shape only, not thin walls inside it.
+  of the vertex cloud along the coordinate axes or along its principal axes (so a rotated plate is measured
+  through its thickness), divided by the mean edge length. With ``degree = 1`` and fewer than
+  :data:`MIN_P1_LAYERS` elements through it, a warning recommends ``degree = 2``. The estimate sees the body's
+  overall shape only, not thin walls inside it.
 
 Both are collective (bounding boxes, sums and maxima over ranks) and log on rank 0 only.
 """
@@ -108,8 +109,10 @@ def elements_through_thickness(mesh, extent: MeshExtent | None = None) -> float:
 
 
 def check_degree(mesh, degree: int, extent: MeshExtent | None = None) -> bool:
-    """Warn (rank 0) if ``degree`` is 1 with fewer than :data:`MIN_P1_LAYERS` elements through the thinnest
-    dimension; returns whether it did."""
+    """Warn (rank 0) if ``degree`` is 1 with few elements through the thinnest dimension; returns whether it did.
+
+    Few: fewer than :data:`MIN_P1_LAYERS`, by :func:`elements_through_thickness`.
+    """
     if degree != 1:
         return False
     extent = mesh_extent(mesh) if extent is None else extent
