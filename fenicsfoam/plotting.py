@@ -1,9 +1,14 @@
-"""Pictures of scene results (pyvista offscreen): deformed shape coloured by |u|, orientation field as glyphs.
+"""Pictures of scene results: the deformed shape coloured by |u| and the orientation field, with colour bars and axes.
 
-Every function is collective: each rank contributes the cells it owns (``dolfinx.plot.create_vtk_mesh``),
-rank 0 merges them and writes the PNG atomically (temporary file in the same directory, then ``os.replace``).
-No scalar bar is drawn (vtk's scalar bar aborts with this vtk wheel next to dolfinx's libstdc++); the colour
-range is written as text instead.
+Every function is collective: the mesh and the values are gathered to rank 0 in the global node numbering
+(:func:`fenicsfoam.io.gather_mesh`), so the picture is of one conforming mesh and rank boundaries do not show; rank
+0 draws and writes the PNG atomically (:func:`foambase.files.atomic_path`).
+
+A picture has a perspective view (pyvista, offscreen, with an x–y–z axes triad) and orthographic views drawn by
+matplotlib with axes in millimetres (a top view x–y and a side view x–z of the deformed boundary, faces sorted back
+to front), sharing one matplotlib colour bar. The colour bar is matplotlib's because vtk's scalar bar aborts with
+the vtk wheel next to dolfinx's libstdc++. The orientation picture is a top view of the l axis at cell midpoints,
+coloured by its vertical component ``|l · e_z|``, next to a perspective view.
 """
 
 from __future__ import annotations
@@ -12,32 +17,20 @@ import os
 from pathlib import Path
 
 import numpy as np
-from dolfinx import fem, plot
+from dolfinx import fem
 from dolfinx.mesh import compute_midpoints
 
+from fenicsfoam.io import gather_mesh, gather_values
 from foambase.files import atomic_path
 
 __all__ = ["plot_displacement", "plot_orientation"]
 
-#: Camera: view vector and view-up, tilted from above (both robots lie along x–y, gravity along −z).
+#: Camera of the perspective view: view vector and view-up, tilted from above (robots lie along x–y, gravity −z).
 VIEW = ((0.6, -1.0, 0.8), (0.0, 0.0, 1.0))
-#: At most this many orientation glyphs are drawn (every k-th owned cell).
+#: At most this many orientation segments are drawn (every k-th cell).
 MAX_GLYPHS = 1500
-
-
-def _gather(pieces, comm):
-    """Merge (topology, cell_types, points, *point arrays) pieces from every rank on rank 0; None elsewhere."""
-    pieces = comm.gather(pieces, root=0)
-    if comm.rank != 0:
-        return None
-    merged, offset = [], 0
-    for topology, cell_types, points, *arrays in pieces:
-        if len(cell_types):
-            t = topology.reshape(len(cell_types), -1).copy()
-            t[:, 1:] += offset
-            merged.append((t.ravel(), cell_types, points, *arrays))
-        offset += len(points)
-    return [np.concatenate(parts) for parts in zip(*merged)]
+#: Colour map of |u|.
+CMAP = "coolwarm"
 
 
 def _pyvista():
@@ -48,78 +41,150 @@ def _pyvista():
     return pyvista
 
 
-def _plotter(title: str):
+def _render(meshes: list[tuple], size=(900, 700)) -> np.ndarray:
+    """A perspective render of ``(mesh, add_mesh keyword arguments)`` pairs with an axes triad, as an RGB image."""
     pyvista = _pyvista()
-    plotter = pyvista.Plotter(off_screen=True, window_size=(1200, 900))
+    plotter = pyvista.Plotter(off_screen=True, window_size=size)
     plotter.set_background("white")
-    plotter.add_text(title, font_size=12, color="black")
-    return plotter
-
-
-def _save(plotter, path: Path) -> None:
+    for mesh, kwargs in meshes:
+        plotter.add_mesh(mesh, **kwargs)
+    plotter.add_axes(color="black")
     plotter.view_vector(VIEW[0], viewup=VIEW[1])
     plotter.reset_camera()
-    with atomic_path(path) as tmp:
-        plotter.screenshot(str(tmp))
+    image = plotter.screenshot(return_img=True)
     plotter.close()
+    return image
+
+
+def _projection(ax, points: np.ndarray, faces: np.ndarray, face_values: np.ndarray, plane: tuple[int, int],
+                depth: np.ndarray, norm, cmap: str, title: str) -> None:
+    """Faces projected on the coordinate plane ``plane`` (axes in mm), drawn back to front along ``depth``."""
+    from matplotlib.collections import PolyCollection
+
+    order = np.argsort(depth)
+    polygons = 1e3 * points[faces[order]][:, :, list(plane)]
+    collection = PolyCollection(polygons, array=face_values[order], cmap=cmap, norm=norm, edgecolors="face",
+                                linewidths=0.2)
+    ax.add_collection(collection)
+    ax.autoscale_view()
+    ax.set_aspect("equal")
+    names = "xyz"
+    ax.set_xlabel(f"{names[plane[0]]} (mm)")
+    ax.set_ylabel(f"{names[plane[1]]} (mm)")
+    ax.set_title(title, fontsize=10)
+
+
+def _save(fig, path: Path) -> None:
+    import matplotlib.pyplot as plt
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+
+
+def _figure(title: str):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig = plt.figure(figsize=(14, 6.5))
+    fig.suptitle(title)
+    grid = fig.add_gridspec(2, 3, width_ratios=(1.3, 1.0, 0.04))
+    return fig, fig.add_subplot(grid[:, 0]), fig.add_subplot(grid[0, 1]), fig.add_subplot(grid[1, 1]), \
+        fig.add_subplot(grid[:, 2])
 
 
 def plot_displacement(u: fem.Function, path: Path, title: str = "") -> None:
     """Write a PNG of the deformed shape ``x = X + u`` coloured by ``|u|`` (mm), with the reference outline.
 
-    Collective; rank 0 writes ``path``. For P2 the quadratic tetrahedra are drawn (vtk subdivides them).
+    Perspective view (axes triad), top view (x–y) and side view (x–z) with axes in mm, one colour bar. Collective;
+    rank 0 writes ``path``. P2 fields are drawn at all their nodes (vtk subdivides the quadratic tetrahedra).
     """
-    V = u.function_space
-    topology, cell_types, points = plot.create_vtk_mesh(V)
-    values = u.x.array.reshape(-1, V.dofmap.index_map_bs)[: len(points)]
-    data = _gather((topology, cell_types, points, values), V.mesh.comm)
-    if data is None:
+    import matplotlib.colors
+
+    mesh = gather_mesh(u.function_space)
+    values = gather_values(u)
+    if mesh is None:
         return
-    pyvista = _pyvista()
-    topology, cell_types, points, values = data
     magnitude = 1e3 * np.linalg.norm(values, axis=1)
-    reference = pyvista.UnstructuredGrid(topology, cell_types, points)
-    deformed = pyvista.UnstructuredGrid(topology, cell_types, points + values)
-    deformed.point_data["|u| (mm)"] = magnitude
-    plotter = _plotter(f"{title}\ndisplacement magnitude from 0 (blue) to {magnitude.max():.3g} mm (red)")
-    plotter.add_mesh(reference.extract_feature_edges(), color="gray", line_width=1)
-    plotter.add_mesh(deformed, scalars="|u| (mm)", cmap="coolwarm", clim=(0.0, max(magnitude.max(), 1e-12)),
-                     show_scalar_bar=False, show_edges=True, edge_color="dimgray", line_width=0.3)
-    _save(plotter, Path(path))
+    top = max(float(magnitude.max()), 1e-12)
+    reference = mesh.to_pyvista()
+    deformed = mesh.to_pyvista({"|u| (mm)": magnitude})
+    deformed.points = mesh.points + values
+    image = _render([(reference.extract_feature_edges(), {"color": "gray", "line_width": 1}),
+                     (deformed, {"scalars": "|u| (mm)", "cmap": CMAP, "clim": (0.0, top), "show_scalar_bar": False,
+                                 "show_edges": True, "edge_color": "dimgray", "line_width": 0.3})])
+    fig, ax3d, ax_top, ax_side, ax_bar = _figure(title)
+    ax3d.imshow(image)
+    ax3d.set_axis_off()
+    ax3d.set_title("perspective (axes triad X, Y, Z)", fontsize=10)
+    faces = mesh.boundary_faces()
+    x = mesh.points + values
+    face_values = magnitude[faces].mean(axis=1)
+    norm = matplotlib.colors.Normalize(0.0, top)
+    _projection(ax_top, x, faces, face_values, (0, 1), x[faces, 2].mean(axis=1), norm, CMAP, "top view (from +z)")
+    _projection(ax_side, x, faces, face_values, (0, 2), -x[faces, 1].mean(axis=1), norm, CMAP, "side view (from −y)")
+    import matplotlib.cm
+    fig.colorbar(matplotlib.cm.ScalarMappable(norm=norm, cmap=CMAP), cax=ax_bar, label="|u| (mm)")
+    fig.tight_layout()
+    _save(fig, Path(path))
 
 
 def plot_orientation(orientation: fem.Function, path: Path, title: str = "") -> None:
-    """Write a PNG of the reference mesh with the DG0 *l* axis drawn as a line segment at cell midpoints.
+    """Write a PNG of the DG0 *l* axis as segments at cell midpoints: a top view (x–y, mm) and a perspective view.
 
-    Collective; rank 0 writes ``path``. At most :data:`MAX_GLYPHS` segments (every k-th cell), of length
-    a few mean cell sizes; a segment has no arrow head since ``a`` and ``−a`` are the same axis.
+    Segments are coloured by ``|l · e_z|`` (0: in the horizontal plane, 1: vertical) and have no arrow head, ``a``
+    and ``−a`` being the same axis. At most :data:`MAX_GLYPHS` segments (every k-th cell), of length a few mean cell
+    sizes. Collective; rank 0 writes ``path``.
     """
-    mesh = orientation.function_space.mesh
-    tdim = mesh.topology.dim
-    n_owned = mesh.topology.index_map(tdim).size_local
-    n_global = mesh.topology.index_map(tdim).size_global
-    topology, cell_types, points = plot.create_vtk_mesh(mesh, tdim, np.arange(n_owned, dtype=np.int32))
+    import matplotlib.cm
+    import matplotlib.colors
+    from matplotlib.collections import LineCollection
+
+    domain = orientation.function_space.mesh
+    tdim = domain.topology.dim
+    n_owned = domain.topology.index_map(tdim).size_local
+    n_global = domain.topology.index_map(tdim).size_global
     stride = max(1, -(-n_global // MAX_GLYPHS))
     cells = np.arange(0, n_owned, stride, dtype=np.int32)
-    midpoints = compute_midpoints(mesh, tdim, cells)
+    midpoints = compute_midpoints(domain, tdim, cells)
     V = orientation.function_space
     dofs = V.dofmap.list.array.reshape(-1, V.dofmap.dof_layout.num_dofs)[cells, 0]
     directions = orientation.x.array.reshape(-1, V.dofmap.index_map_bs)[dofs]
-    gathered = mesh.comm.gather((midpoints, directions), root=0)
-    data = _gather((topology, cell_types, points), mesh.comm)
-    if data is None:
+    gathered = domain.comm.gather((midpoints, directions), root=0)
+    mesh = gather_mesh(fem.VectorFunctionSpace(domain, ("CG", 1)))
+    if mesh is None:
         return
     pyvista = _pyvista()
-    topology, cell_types, points = data
     midpoints = np.concatenate([g[0] for g in gathered])
     directions = np.concatenate([g[1] for g in gathered])
-    grid = pyvista.UnstructuredGrid(topology, cell_types, points)
-    extent = np.ptp(points, axis=0)
+    extent = np.ptp(mesh.points, axis=0)
     length = 1.5 * (np.prod(extent[extent > 0]) / n_global) ** (1.0 / np.count_nonzero(extent > 0))
+    vertical = np.abs(directions[:, 2])
+    norm = matplotlib.colors.Normalize(0.0, 1.0)
+    cmap = "viridis"
     cloud = pyvista.PolyData(midpoints)
     cloud.point_data["l"] = directions
+    cloud.point_data["|l_z|"] = vertical
     glyphs = cloud.glyph(orient="l", scale=False, factor=length, geom=pyvista.Line((-0.5, 0, 0), (0.5, 0, 0)))
-    plotter = _plotter(f"{title}\nl axis at {len(midpoints)} cell midpoints")
-    plotter.add_mesh(grid, color="lightgray", opacity=0.25)
-    plotter.add_mesh(glyphs, color="darkred", line_width=2)
-    _save(plotter, Path(path))
+    image = _render([(mesh.to_pyvista(), {"color": "lightgray", "opacity": 0.25}),
+                     (glyphs, {"scalars": "|l_z|", "cmap": cmap, "clim": (0.0, 1.0), "show_scalar_bar": False,
+                               "line_width": 2})])
+    fig, ax3d, ax_top, ax_side, ax_bar = _figure(f"{title}\nl axis at {len(midpoints)} cell midpoints")
+    ax3d.imshow(image)
+    ax3d.set_axis_off()
+    ax3d.set_title("perspective (axes triad X, Y, Z)", fontsize=10)
+    faces = mesh.boundary_faces()
+    outline = np.full(len(faces), 0.0)
+    gray = matplotlib.colors.ListedColormap(["#e6e6e6"])
+    for ax, plane, depth, name in ((ax_top, (0, 1), 2, "top view (from +z)"),
+                                   (ax_side, (0, 2), 1, "side view (from −y)")):
+        sign = 1.0 if depth == 2 else -1.0
+        _projection(ax, mesh.points, faces, outline, plane, sign * mesh.points[faces, depth].mean(axis=1), None, gray,
+                    name)
+        ends = np.stack([midpoints - 0.5 * length * directions, midpoints + 0.5 * length * directions], axis=1)
+        order = np.argsort(sign * midpoints[:, depth])
+        segments = LineCollection(1e3 * ends[order][:, :, list(plane)], array=vertical[order], cmap=cmap, norm=norm,
+                                  linewidths=1.2)
+        ax.add_collection(segments)
+    fig.colorbar(matplotlib.cm.ScalarMappable(norm=norm, cmap=cmap), cax=ax_bar, label="|l · e_z|")
+    fig.tight_layout()
+    _save(fig, Path(path))

@@ -48,7 +48,8 @@ __all__ = ["FIXED_OUTPUTS", "STATUSES", "RunFolder", "SceneResult", "StepResult"
 logger = logging.getLogger(__name__)
 
 #: The files every run may write besides its step pictures (``<label>.png``).
-FIXED_OUTPUTS = ("summary.json", "probes.csv", "solution.xdmf", "solution.h5", "orientation.png")
+FIXED_OUTPUTS = ("summary.json", "probes.csv", "solution.xdmf", "solution.h5", "solution.npz",
+                 "orientation.png")
 #: ``summary.json``'s ``status``: how the run that wrote the folder ended (see the module docstring).
 STATUSES = ("incomplete", "complete", "failed", "interrupted")
 _XDMF_TEMPORARY = ".solution."

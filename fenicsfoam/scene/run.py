@@ -20,6 +20,7 @@ from typing import Any
 from mpi4py import MPI
 from tqdm import tqdm
 
+from fenicsfoam.io import SOLUTION_FILE, SolutionWriter
 from fenicsfoam.scene.build import build_model
 from fenicsfoam.scene.outputs import (
     RunFolder,
@@ -79,10 +80,11 @@ def run_scene(source: str | os.PathLike | Mapping[str, Any] | Scene, out_dir: st
     source
         A TOML file, a dict as ``tomllib`` reads one, or a parsed :class:`Scene`.
     out_dir
-        Where to write ``summary.json``, ``probes.csv``, ``solution.xdmf`` (+ ``.h5``) and the PNG pictures
-        (``<step>.png``, and ``orientation.png`` for anisotropic scenes); ``None`` writes nothing. A new or empty
-        directory, or a previous run's folder, whose files are replaced (the rules:
-        :mod:`fenicsfoam.scene.outputs`). Every file is written atomically, the text and pictures on rank 0 only.
+        Where to write ``summary.json``, ``probes.csv``, ``solution.xdmf`` (+ ``.h5``), ``solution.npz``
+        (:func:`fenicsfoam.io.read_solution`) and the PNG pictures (``<step>.png``, and ``orientation.png`` for
+        anisotropic scenes); ``None`` writes nothing. A new or empty directory, or a previous run's folder, whose
+        files are replaced (the rules: :mod:`fenicsfoam.scene.outputs`). Every file is written atomically, the text
+        and pictures on rank 0 only.
     comm
         MPI communicator (default ``MPI.COMM_WORLD``).
 
@@ -121,6 +123,7 @@ def run_scene(source: str | os.PathLike | Mapping[str, Any] | Scene, out_dir: st
         folder.start(result)
     out = None if folder is None else folder.path
     series = XdmfSeries(comm, out, problem.V.mesh) if out is not None and scene.xdmf else None
+    solution = SolutionWriter(problem.V, out) if series is not None else None
     pictures = scene.png if out is not None else ()
     failure, current = None, None
     try:
@@ -145,6 +148,7 @@ def run_scene(source: str | os.PathLike | Mapping[str, Any] | Scene, out_dir: st
             logger.info("scene %s, step %s: %s", scene.name, step.label, result.steps[-1].probes)
             if series is not None:
                 series.write(problem.u, float(index))
+                solution.add(step.label, problem.u)
             if folder is not None:
                 folder.progress(result, *([f"{step.label}.png"] if step.label in pictures else []))
             if step.label in pictures:
@@ -153,7 +157,8 @@ def run_scene(source: str | os.PathLike | Mapping[str, Any] | Scene, out_dir: st
         if series is not None:
             series.commit()
             if folder is not None:
-                folder.progress(result, "solution.xdmf", "solution.h5")
+                folder.progress(result, "solution.xdmf", "solution.h5", SOLUTION_FILE)
+            solution.commit()
         if pictures and model.orientation is not None:
             folder.progress(result, "orientation.png")
             picture_orientation(model.orientation, out, scene)
