@@ -7,6 +7,8 @@ A region (facets from facet tags, or any mesh entities) is carried rigidly:
 a rotation by the angle θ about the axis ``n`` through the point ``p`` (Rodrigues:
 ``R = I + sin θ K + (1 - cos θ) K²``, ``K`` the cross-product matrix of the unit axis) followed by a
 translation ``t``. A clamp is a motion that no load step moves (θ = 0, t = 0). Angles are in radians.
+A motion may prescribe only some components of ``u`` (``components``, e.g. ``(2,)``: a support that blocks
+the vertical motion and lets the region slide and turn otherwise, like a load cell under a fingertip).
 """
 
 from __future__ import annotations
@@ -48,6 +50,8 @@ class RigidMotion:
         Topological dimension of ``entities``; ``None`` means facets.
     axis, point
         The rotation axis (any non-zero 3-vector) and a point on it (m).
+    components
+        The components of ``u`` prescribed (0: x, 1: y, 2: z); the others are free.
 
     """
 
@@ -56,11 +60,16 @@ class RigidMotion:
     dim: int | None = None
     axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
     point: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    components: tuple[int, ...] = (0, 1, 2)
 
     def __post_init__(self):
         rotation_matrix(self.axis, 0.0)  # validates the axis
         if np.asarray(self.point, dtype=float).shape != (3,):
             raise InputError(f"motion {self.name!r}: point must be a 3-vector, got {self.point}")
+        components = tuple(self.components)
+        if not components or len(set(components)) != len(components) or not set(components) <= {0, 1, 2}:
+            raise InputError(f"motion {self.name!r}: components must be distinct values among 0, 1, 2, got "
+                             f"{self.components!r}")
 
     def displacement(self, X: np.ndarray, angle: float, translation: Sequence[float]) -> np.ndarray:
         """``u(X) = R(θ)(X - p) + p + t - X`` for reference points ``X`` of shape (n, 3)."""
@@ -70,10 +79,19 @@ class RigidMotion:
 
 
 class MotionBC:
-    """The Dirichlet condition of a :class:`RigidMotion` on a vector space ``V``, updated by :meth:`set`.
+    """The Dirichlet conditions of a :class:`RigidMotion` on a vector space ``V``, updated by :meth:`set`.
 
     The prescribed values are written directly at the constrained degrees of freedom from their
-    coordinates (exact for any Lagrange degree, since a rigid motion is affine).
+    coordinates (exact for any Lagrange degree, since a rigid motion is affine). ``bcs`` holds one condition
+    for the whole vector (all components) or one per prescribed component (on the sub-spaces of ``V``).
+
+    Attributes
+    ----------
+    dofs
+        Local indices of the nodes of the region (blocks of ``V``), whatever the components prescribed.
+    components
+        The prescribed components.
+
     """
 
     def __init__(self, V: fem.FunctionSpace, motion: RigidMotion):
@@ -81,15 +99,48 @@ class MotionBC:
         dim = mesh.topology.dim - 1 if motion.dim is None else motion.dim
         mesh.topology.create_connectivity(dim, mesh.topology.dim)
         self.motion = motion
-        self.dofs = fem.locate_dofs_topological(V, dim, np.asarray(motion.entities, dtype=np.int32))
+        self.components = tuple(sorted(motion.components))
+        entities = np.asarray(motion.entities, dtype=np.int32)
+        self.dofs = fem.locate_dofs_topological(V, dim, entities)
         n_owned = V.dofmap.index_map.size_local
         if mesh.comm.allreduce(int(np.sum(self.dofs < n_owned))) == 0:
             raise InputError(f"motion {motion.name!r} selects no degree of freedom (empty region?)")
         self._X = V.tabulate_dof_coordinates()[self.dofs]
-        self.value = fem.Function(V, name=f"motion_{motion.name}")
-        self.bc = fem.dirichletbc(self.value, self.dofs)
+        if self.components == (0, 1, 2):
+            self.value = fem.Function(V, name=f"motion_{motion.name}")
+            self.bcs = [fem.dirichletbc(self.value, self.dofs)]
+            self._parts = None
+            return
+        self._parts = []  # (component, value on the collapsed sub-space, its dofs there, the nodes' rows in _X)
+        self.bcs = []
+        for c in self.components:
+            Vc, _ = V.sub(c).collapse()
+            dofs = fem.locate_dofs_topological((V.sub(c), Vc), dim, entities)
+            value = fem.Function(Vc, name=f"motion_{motion.name}_{'xyz'[c]}")
+            # the parent's unrolled index bs·node + c gives the node, hence its row in _X
+            rows = np.searchsorted(self.dofs, dofs[0] // V.dofmap.index_map_bs)
+            self._parts.append((c, value, dofs[1], rows))
+            self.bcs.append(fem.dirichletbc(value, dofs, V.sub(c)))
+
+    @property
+    def bc(self):
+        """The Dirichlet condition when every component is prescribed (the usual case)."""
+        if len(self.bcs) != 1 or self._parts is not None:
+            raise InputError(f"motion {self.motion.name!r} prescribes components {self.components}: use .bcs")
+        return self.bcs[0]
+
+    def constrained(self) -> np.ndarray:
+        """(len(dofs), 3) booleans: which components of each node of ``dofs`` are prescribed."""
+        mask = np.zeros((len(self.dofs), 3), dtype=bool)
+        mask[:, list(self.components)] = True
+        return mask
 
     def set(self, angle: float, translation: Sequence[float]) -> None:
         """Prescribe the motion by ``angle`` (rad) and ``translation`` (m)."""
-        bs = self.value.function_space.dofmap.index_map_bs
-        self.value.x.array.reshape(-1, bs)[self.dofs] = self.motion.displacement(self._X, angle, translation)
+        u = self.motion.displacement(self._X, angle, translation)
+        if self._parts is None:
+            bs = self.value.function_space.dofmap.index_map_bs
+            self.value.x.array.reshape(-1, bs)[self.dofs] = u
+            return
+        for c, value, dofs, rows in self._parts:
+            value.x.array[dofs] = u[rows, c]

@@ -264,7 +264,7 @@ class Cable(Load):
         gathered = self._comm.allgather([(self._global_owned[n], w) for n, w in self._local])
         self._global = [(np.concatenate([g[i][0] for g in gathered]).astype(PETSc.IntType),
                          np.concatenate([g[i][1] for g in gathered])) for i in range(len(self.via))]
-        self.set_constrained(np.empty(0, dtype=np.int64))
+        self.set_constrained(np.empty(0, dtype=np.int64))  # until the solver gives its Dirichlet nodes
 
     # ---------------------------------------------------------------------------------------------
     def _sum(self, local: np.ndarray) -> np.ndarray:
@@ -339,24 +339,35 @@ class Cable(Load):
             for (nodes, weights), g in zip(self._local, gradient):
                 array[nodes] += scale * np.outer(weights, g)
 
-    def set_constrained(self, global_nodes: np.ndarray) -> None:
-        """Leave the rows and columns of these (Dirichlet) nodes, global numbers, out of the tangent (collective)."""
-        constrained = np.asarray(global_nodes, dtype=np.int64)
+    def set_constrained(self, global_nodes: np.ndarray, components: np.ndarray | None = None) -> None:
+        """Leave the prescribed (Dirichlet) rows and columns out of the tangent (collective).
+
+        ``global_nodes`` are global node numbers, ``components`` (n, 3) booleans say which of their components are
+        prescribed (default: all).
+        """
+        nodes = np.asarray(global_nodes, dtype=np.int64)
+        masks = np.ones((len(nodes), 3), dtype=bool) if components is None else np.asarray(components, dtype=bool)
+        lookup = dict(zip(nodes.tolist(), masks))
+        free = np.ones(3, dtype=bool)
         owned = set(self._global_owned.tolist())
         _, blocks = self._gradient(self._X)
-        #: per tangent block (i, j): kept rows (owned, free), their weights, kept columns (free), their weights
+        #: per tangent block (i, j): kept rows (owned, not fully prescribed), their weights and free components,
+        #: kept columns, their weights and free components
         self._blocks = []
         for i, j in dict.fromkeys((i, j) for i, j, _ in blocks):
             rows, row_w = self._global[i]
             cols, col_w = self._global[j]
-            keep_rows = np.array([int(r) in owned for r in rows], dtype=bool) & ~np.isin(rows, constrained)
-            keep_cols = ~np.isin(cols, constrained)
-            self._blocks.append((i, j, rows[keep_rows], row_w[keep_rows], cols[keep_cols], col_w[keep_cols]))
+            row_free = np.array([~lookup.get(int(r), ~free) for r in rows], dtype=bool).reshape(-1, 3)
+            col_free = np.array([~lookup.get(int(c), ~free) for c in cols], dtype=bool).reshape(-1, 3)
+            keep_rows = np.array([int(r) in owned for r in rows], dtype=bool) & row_free.any(axis=1)
+            keep_cols = col_free.any(axis=1)
+            self._blocks.append((i, j, rows[keep_rows], row_w[keep_rows], row_free[keep_rows], cols[keep_cols],
+                                 col_w[keep_cols], col_free[keep_cols]))
 
     def coupling(self) -> dict[int, np.ndarray]:
         """Global node → the global nodes its tangent row couples to (owned free rows, as set up)."""
         columns: dict[int, list[np.ndarray]] = {}
-        for _, _, rows, _, cols, _ in self._blocks:
+        for _, _, rows, _, _, cols, _, _ in self._blocks:
             for r in rows.tolist():
                 columns.setdefault(r, []).append(cols)
         return {r: np.unique(np.concatenate(c)) for r, c in columns.items()}
@@ -374,9 +385,10 @@ class Cable(Load):
         for i, j, block in blocks:
             K[i, j] = K.get((i, j), 0.0) + block
         scale = factor * self.tension
-        for i, j, rows, row_w, cols, col_w in self._blocks:
+        for i, j, rows, row_w, row_free, cols, col_w, col_free in self._blocks:
             if rows.size and cols.size:
                 values = scale * np.einsum("a,b,ij->aibj", row_w, col_w, K[i, j])
+                values *= row_free[:, :, None, None] & col_free[None, None, :, :]  # prescribed components: none
                 values = values.reshape(3 * rows.size, 3 * cols.size)
                 A.setValuesBlocked(rows.astype(PETSc.IntType), cols.astype(PETSc.IntType), values,
                                    addv=PETSc.InsertMode.ADD_VALUES)

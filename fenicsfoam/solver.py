@@ -279,7 +279,7 @@ class ElasticityProblem:
         self._det_F = fem.Expression(ufl.det(deformation_gradient(self.u)), self._inversion_points(mesh))
 
         self.motions = {m.name: MotionBC(self.V, m) for m in motions}
-        self._bcs = [m.bc for m in self.motions.values()]
+        self._bcs = [bc for m in self.motions.values() for bc in m.bcs]
         #: the current load state (gravity factor, motion angles and translations); all zero at the start
         self.loads = LoadState(gravity=0.0, angles=dict.fromkeys(names, 0.0),
                                translations={n: np.zeros(3) for n in names}, factors=dict.fromkeys(load_names, 0.0))
@@ -294,9 +294,9 @@ class ElasticityProblem:
         # Options already in the database (the command line) win over ours.
         self._options = {prefix + key: value for key, value in options.items() if not db.hasName(prefix + key)}
         if self._cables:  # a cable couples the nodes of its via points: entries outside the form's pattern
-            constrained = self._constrained_global_nodes()
+            nodes, components = self._constrained_global_nodes()
             for cable in self._cables:
-                cable.set_constrained(constrained)
+                cable.set_constrained(nodes, components)
             self._A = self._create_matrix_with_cables(self._matrix_type(prefix))
         else:
             self._A = create_matrix(self._jacobian, self._matrix_type(prefix))
@@ -444,13 +444,19 @@ class ElasticityProblem:
         if self.rotation is not None:
             self.rotation.update()
 
-    def _constrained_global_nodes(self) -> np.ndarray:
-        """Global numbers of every node a motion prescribes (on every rank)."""
+    def _constrained_global_nodes(self) -> tuple[np.ndarray, np.ndarray]:
+        """Global numbers of the nodes a motion prescribes and which of their components (on every rank)."""
         index_map = self.V.dofmap.index_map
-        local = [m.dofs[m.dofs < index_map.size_local] for m in self.motions.values()]
-        local = np.unique(np.concatenate(local)) if local else np.empty(0, dtype=np.int32)
-        owned = index_map.local_to_global(local.astype(np.int32)) if local.size else np.empty(0, dtype=np.int64)
-        return np.unique(np.concatenate([np.asarray(g, dtype=np.int64) for g in self.V.mesh.comm.allgather(owned)]))
+        n_owned = index_map.size_local
+        masks: dict[int, np.ndarray] = {}
+        for motion in self.motions.values():
+            owned = motion.dofs < n_owned
+            numbers = index_map.local_to_global(motion.dofs[owned].astype(np.int32))
+            for number, mask in zip(numbers.tolist(), motion.constrained()[owned]):
+                masks[number] = masks.get(number, np.zeros(3, dtype=bool)) | mask
+        gathered = {k: v for part in self.V.mesh.comm.allgather(masks) for k, v in part.items()}
+        nodes = np.array(sorted(gathered), dtype=np.int64)
+        return nodes, np.array([gathered[n] for n in nodes.tolist()], dtype=bool).reshape(-1, 3)
 
     def _create_matrix_with_cables(self, matrix_type: str) -> PETSc.Mat:
         """The Jacobian's matrix, preallocated for the form's sparsity pattern and the cables' couplings.

@@ -302,6 +302,8 @@ def chamber_scene(**loads):
     (lambda s: s.update(probes=["reaction_force:top"]), r"'reaction_force:top': the group 'top' is not clamped"),
     (lambda s: s.update(probes=["volume:finger"]), r"'volume:finger': unknown facet group 'finger'"),
     (lambda s: s.update(probes=["stress:tip"]), r"unknown probe kind 'stress' in 'stress:tip'"),
+    (lambda s: s["loads"]["motion"]["wall"].update(components=["z", "w"]),
+     r"^loads\.motion\.wall\.components: expected a non-empty array of distinct \"x\", \"y\", \"z\""),
 ])
 def test_invalid_loads_and_probes_name_the_key(edit, message):
     scene = chamber_scene()
@@ -342,3 +344,20 @@ def test_loads_and_probes_do_not_depend_on_the_partition():
     for a, b in zip(parallel.steps, serial.steps):
         for name, value in b.probes.items():
             assert a.probes[name] == pytest.approx(value, rel=1e-7, abs=1e-12), (a.label, name)
+
+
+def test_a_support_blocking_one_component_carries_only_that_component():
+    """A pad under the tip blocks z only: pushed along x, the finger slides over it (the pad carries no x force,
+    the clamp all of it); the weight is shared between the pad and the clamp, and together they carry all of it."""
+    scene = finger_scene("corotational", gravity=[0.0, 0.0, -9.81],
+                         force={"push": {"group": "tip", "force": [0.05, 0.0, 0.0]}},
+                         motion={"load_cell": {"group": "pad", "components": ["z"]}})
+    scene["geometry"]["pad"] = 0.005
+    scene["steps"] = [{"label": "push", "gravity": 1.0, "loads": {"push": 1.0}}]
+    scene["probes"] = ["reaction_force:pad", "reaction_force:base", "displacement:pad"]
+    probes = run_scene(scene, comm=SELF).steps[-1].probes
+    weight = 9.81 * RHO * finger_geometry().volume
+    pad, base = np.array(probes["reaction_force:pad"]), np.array(probes["reaction_force:base"])
+    assert np.abs(pad[:2]).max() < 1e-9 * weight and pad[2] > 0.1 * weight
+    assert np.linalg.norm(pad + base - [-0.05, 0.0, weight]) < 1e-8 * weight
+    assert abs(probes["displacement:pad"][2]) < 1e-12 and probes["displacement:pad"][0] > 1e-5  # slid, not lifted

@@ -329,8 +329,14 @@ def _read_motion(loads: _Table, key: str, mesh: MeshInfo) -> dict[str, dict]:
         if not any(axis):
             raise SceneError(f"{table.key('axis')}: the rotation axis must be a non-zero vector")
         point = table.vector("point", 3, default=[0.0, 0.0, 0.0])
+        components = table.raw("components", default=["x", "y", "z"])
+        if (not isinstance(components, list) or not components or len(set(components)) != len(components)
+                or not all(c in ("x", "y", "z") for c in components)):
+            raise SceneError(f"{table.key('components')}: expected a non-empty array of distinct \"x\", \"y\", \"z\" "
+                             f"(the prescribed components), got {components!r}")
         table.done()
-        return {"group": group, "axis": axis, "point": point}
+        return {"group": group, "axis": axis, "point": point,
+                "components": tuple(sorted("xyz".index(c) for c in components))}
     return _named_tables(loads, key, one)
 
 
@@ -343,7 +349,8 @@ def _motion_motions(motions: dict[str, dict], context: BuildContext) -> list:
     from fenicsfoam.bcs import RigidMotion
     dim = context.tagged.mesh.topology.dim
     return [RigidMotion(name, _entities(spec["group"], context), dim=dim if spec["group"].cells else None,
-                        axis=spec["axis"], point=spec["point"]) for name, spec in motions.items()]
+                        axis=spec["axis"], point=spec["point"], components=spec["components"])
+            for name, spec in motions.items()]
 
 
 def _surface_loads(quantity: str):
