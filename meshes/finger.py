@@ -6,7 +6,9 @@ Geometry (SI units, metres): the box ``0 ≤ x ≤ length``, ``|y| ≤ width/2``
 height/2 − top_wall``. A thin top wall over a thick bottom wall makes an inflated chamber bend the finger
 downwards (towards its thick, strain-limiting side): the pressure on the end walls stretches the finger along a
 line above the neutral axis of its hollow section, and the thin top wall stretches more than the thick bottom.
-Without a chamber the finger is a plain box, e.g. for a cable-driven finger.
+Without a chamber the finger is a plain box, e.g. for a cable-driven finger. With ``pad > 0`` the bottom face is
+split at ``x = length − pad`` (the volume too, conformingly): the patch near the tip is the facet group ``pad``, where a
+support (a load cell, a table) can touch the finger.
 
 Tags (gmsh physical groups, named, so that scenes and :func:`meshes.msh.physical_groups` see them by name):
 
@@ -17,8 +19,9 @@ finger     1      the volume (cell tag)
 base       11     the face ``x = 0``
 tip        12     the face ``x = length``
 top        13     the face ``z = height/2``
-bottom     14     the face ``z = −height/2``
+bottom     14     the face ``z = −height/2`` (without the pad)
 sides      15     the faces ``y = ±width/2``
+pad        16     the bottom face's last ``pad`` metres, ``x ≥ length − pad`` (with ``pad > 0``)
 chamber    20     the cavity's walls (with ``chamber = true``)
 =========  =====  ==========================================
 
@@ -44,7 +47,8 @@ __all__ = ["CELL_TAGS", "FACET_TAGS", "FingerGeometry", "FingerMesh", "build_gms
 #: Named cell tags.
 CELL_TAGS: dict[str, int] = {"finger": 1}
 #: Named facet tags.
-FACET_TAGS: dict[str, int] = {"base": 11, "tip": 12, "top": 13, "bottom": 14, "sides": 15, "chamber": 20}
+FACET_TAGS: dict[str, int] = {"base": 11, "tip": 12, "top": 13, "bottom": 14, "sides": 15, "pad": 16,
+                              "chamber": 20}
 
 
 @dataclass(frozen=True)
@@ -59,12 +63,15 @@ class FingerGeometry:
     bottom_wall: float = 0.006   #: wall below the chamber (the thick, strain-limiting side)
     side_wall: float = 0.003     #: walls beside the chamber
     end_wall: float = 0.005      #: walls at both ends of the chamber
+    pad: float = 0.0             #: length of the bottom face's patch at the tip (facet group ``pad``); 0: none
 
     def __post_init__(self):
         for f in fields(self):
             value = getattr(self, f.name)
-            if f.name != "chamber" and not (isinstance(value, int | float) and value > 0):
+            if f.name not in ("chamber", "pad") and not (isinstance(value, int | float) and value > 0):
                 raise InputError(f"finger {f.name} must be a length > 0 (m), got {value!r}")
+        if not (isinstance(self.pad, int | float) and 0 <= self.pad < self.length):
+            raise InputError(f"finger pad must be a length in [0, length) (m), got {self.pad!r}")
         if self.chamber:
             for what, walls, size in (("length", 2 * self.end_wall, self.length),
                                       ("width", 2 * self.side_wall, self.width),
@@ -104,16 +111,24 @@ def build_gmsh_finger(geometry: FingerGeometry) -> None:
     """Create the finger in the current gmsh model, with its physical groups (:data:`CELL_TAGS`, :data:`FACET_TAGS`)."""
     occ = gmsh.model.occ
     g = geometry
-    body = occ.addBox(0.0, -g.width / 2, -g.height / 2, g.length, g.width, g.height)
+    split = g.length - g.pad
+    if g.pad > 0:  # two boxes sharing the face x = length − pad
+        pieces = [(3, occ.addBox(0.0, -g.width / 2, -g.height / 2, split, g.width, g.height)),
+                  (3, occ.addBox(split, -g.width / 2, -g.height / 2, g.pad, g.width, g.height))]
+        pieces, _ = occ.fragment(pieces[:1], pieces[1:])
+    else:
+        pieces = [(3, occ.addBox(0.0, -g.width / 2, -g.height / 2, g.length, g.width, g.height))]
     if g.chamber:
         lo, hi = g.chamber_box
         cavity = occ.addBox(*lo, *(b - a for a, b in zip(lo, hi)))
-        occ.cut([(3, body)], [(3, cavity)])
+        pieces, _ = occ.cut(pieces, [(3, cavity)])
+        if len(pieces) > 1:
+            pieces, _ = occ.fragment(pieces[:1], pieces[1:])  # conforming at the shared face
     occ.synchronize()
-    (volume,) = [tag for _, tag in gmsh.model.getEntities(3)]
+    volumes = [tag for _, tag in gmsh.model.getEntities(3)]
     tol = 1e-4 * min(g.length, g.width, g.height)  # gmsh pads bounding boxes by 1e-7
     groups: dict[str, list[int]] = {name: [] for name in FACET_TAGS}
-    for _, surface in gmsh.model.getBoundary([(3, volume)], oriented=False):
+    for _, surface in gmsh.model.getBoundary([(3, v) for v in volumes], combined=True, oriented=False):
         x0, y0, z0, x1, y1, z1 = gmsh.model.getBoundingBox(2, surface)
         if abs(x1) < tol:
             groups["base"].append(surface)
@@ -122,12 +137,12 @@ def build_gmsh_finger(geometry: FingerGeometry) -> None:
         elif abs(z0 - g.height / 2) < tol:
             groups["top"].append(surface)
         elif abs(z1 + g.height / 2) < tol:
-            groups["bottom"].append(surface)
+            groups["pad" if g.pad > 0 and x0 > split - tol else "bottom"].append(surface)
         elif abs(abs(y0) - g.width / 2) < tol and abs(y1 - y0) < tol:
             groups["sides"].append(surface)
         else:
             groups["chamber"].append(surface)
-    gmsh.model.addPhysicalGroup(3, [volume], CELL_TAGS["finger"])
+    gmsh.model.addPhysicalGroup(3, volumes, CELL_TAGS["finger"])
     gmsh.model.setPhysicalName(3, CELL_TAGS["finger"], "finger")
     for name, surfaces in groups.items():
         if surfaces:

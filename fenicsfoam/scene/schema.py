@@ -174,13 +174,14 @@ def _read_geometry(scene: _Table, base: Path | None) -> MeshInfo:
             params[key] = geometry.integer(key, default=default, choices=(1, 2))
         elif key == "pivot_z":
             params[key] = geometry.number(key, default=default)
-        elif key == "fillet_radius":
+        elif key in ("fillet_radius", "pad"):
             params[key] = geometry.number(key, default=default, check=lambda v: v >= 0, valid="a length >= 0 (m)")
         else:
             params[key] = geometry.number(key, default=default, check=lambda v: v > 0, valid="a length > 0 (m)")
     geometry.done()
-    if builder == "finger" and not params["chamber"]:
-        facets = {name: tags for name, tags in facets.items() if name != "chamber"}
+    if builder == "finger":
+        absent = {"chamber": not params["chamber"], "pad": params["pad"] == 0}
+        facets = {name: tags for name, tags in facets.items() if not absent.get(name)}
     return MeshInfo(builder, params, regions, facets, frozenset().union(*regions.values()),
                     frozenset().union(*facets.values()))
 
