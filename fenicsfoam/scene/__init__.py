@@ -4,20 +4,26 @@ A scene is read with the standard library's ``tomllib`` and validated key by key
 an unknown key, a value of the wrong type, a missing value or a value out of range raises :class:`SceneError`
 whose message names the key path (e.g. ``regions.arms.density``) and what would be valid. Only what the scene
 declares is built (a clamp if ``loads.clamp`` is given, servo horns if ``loads.servos`` is true, gravity if
-``loads.gravity`` is given, the listed probes). Every key is documented in the docs' scenes page.
+``loads.gravity`` is given, each named load and motion, the listed probes). Every key is documented in the docs'
+scenes page.
 
 Layout of a scene (SI units; servo angles in degrees)::
 
     name = "tripod_case_b"
-    [geometry]      builder = "beam" | "tripod", and the builder's parameters (h, order, sizes),
+    [geometry]      builder = "beam" | "tripod" | "finger", and the builder's parameters (h, order, sizes),
                     or builder = "file", path = "robot.msh" (gmsh; relative to the scene file's directory)
-    [fem]           model = "linear" | "svk" | "corotational", degree = 1 | 2, [fem.petsc] options
+    [fem]           model = "linear" | "svk" | "corotational", degree = 2 | 1, [fem.petsc] options
     [regions.NAME]  tags = int | [ints] | "named region", material = "isotropic" | "transverse_isotropic" | "foam"
                     (foam: E_solid = a modulus, or {calibration = "calibration.json"} relative to the scene file)
     [orientation]   kind = "uniform" | "per_tag" | "spiral" | "callable"  (only with anisotropic regions)
     [loads]         gravity = [gx, gy, gz], clamp = [facet tags] | "name", servos = true
-    [[steps]]       label, gravity (factor), servo_deg (one angle or three), increments
-    probes = ["tip_deflection"] | ["center_height", "center_rotation"]
+    [loads.force|traction|pressure.NAME]  group, force (N) | traction (Pa) | pressure (Pa)
+    [loads.cable.NAME]                    points, tension (N), pull_point
+    [loads.motion.NAME]                   group, axis, point, components
+    [[steps]]       label, gravity (factor), servo_deg, loads = {NAME = factor}, motions = {NAME = {angle_deg,
+                    translation}}, increments
+    probes = ["tip_deflection", "center_height", "center_rotation", "KIND:GROUP" (reaction_force, displacement,
+              rotation, volume)]
     [outputs]       xdmf = true, png = true | false | [step labels]
 
 The package, in the order of the data flow:
