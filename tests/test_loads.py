@@ -316,7 +316,11 @@ def test_valid_group_probes_and_open_surfaces():
     """A reaction on a moved group and on the clamp validate; a volume needs a closed surface (checked when built)."""
     scene = chamber_scene()
     scene["probes"] = ["reaction_force:tip", "reaction_force:base", "rotation:finger", "volume:chamber"]
-    assert parse_scene(scene).probes == tuple(scene["probes"])
+    parsed = parse_scene(scene)
+    assert parsed.probes == tuple(scene["probes"])
+    assert parsed.probe_groups["rotation:finger"].cells and not parsed.probe_groups["volume:chamber"].cells
+    scene["loads"]["motion"]["wall"]["group"] = "finger"  # a region: every node of the body is moved
+    assert parse_scene(scene).loads["motion"]["wall"]["group"].cells
     scene["probes"] = ["volume:top"]
     with pytest.raises(SceneError, match=r"'volume:top'.*do not form a closed surface"):
         run_scene(scene, comm=SELF)
@@ -361,3 +365,30 @@ def test_a_support_blocking_one_component_carries_only_that_component():
     assert np.abs(pad[:2]).max() < 1e-9 * weight and pad[2] > 0.1 * weight
     assert np.linalg.norm(pad + base - [-0.05, 0.0, weight]) < 1e-8 * weight
     assert abs(probes["displacement:pad"][2]) < 1e-12 and probes["displacement:pad"][0] > 1e-5  # slid, not lifted
+
+
+def test_reactions_on_cell_regions_carry_the_tripod():
+    """The Tripod's three servo horns (cell regions arm_end0..2) together carry the plate's weight (the meshed
+    volume's: straight edges along the hole), a third each (the plate, its silicone and its mesh are invariant under
+    the plate's symmetry group)."""
+    import tomllib
+    from pathlib import Path
+
+    import dolfinx
+    import ufl
+
+    scenes = Path(__file__).resolve().parents[1] / "demos" / "scenes"
+    scene = tomllib.loads((scenes / "tripod_silicone.toml").read_text())
+    scene["geometry"]["h"] = 0.006
+    scene["steps"] = scene["steps"][:1]
+    scene["outputs"] = dict(NO_FILES)
+    scene["probes"] = [f"reaction_force:arm_end{i}" for i in range(3)]
+    result = run_scene(scene, comm=SELF)
+    probes = result.steps[-1].probes
+    mesh = result.displacement.function_space.mesh
+    volume = dolfinx.fem.assemble_scalar(dolfinx.fem.form(dolfinx.fem.Constant(mesh, 1.0) * ufl.dx(domain=mesh)))
+    weight = 9.81 * scene["regions"]["plate"]["rho"] * volume
+    total = np.sum([probes[f"reaction_force:arm_end{i}"] for i in range(3)], axis=0)
+    assert np.linalg.norm(total - [0.0, 0.0, weight]) < 1e-8 * weight
+    for i in range(3):
+        assert probes[f"reaction_force:arm_end{i}"][2] == pytest.approx(weight / 3, rel=1e-9)
