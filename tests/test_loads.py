@@ -320,6 +320,7 @@ def test_valid_group_probes_and_open_surfaces():
     assert parsed.probes == tuple(scene["probes"])
     assert parsed.probe_groups["rotation:finger"].cells and not parsed.probe_groups["volume:chamber"].cells
     scene["loads"]["motion"]["wall"]["group"] = "finger"  # a region: every node of the body is moved
+    scene["probes"] = ["reaction_force:finger"]
     assert parse_scene(scene).loads["motion"]["wall"]["group"].cells
     scene["probes"] = ["volume:top"]
     with pytest.raises(SceneError, match=r"'volume:top'.*do not form a closed surface"):
