@@ -252,8 +252,9 @@ def test_a_rerun_replaces_the_previous_run_and_keeps_other_files(work, capsys):
     out = work / "out"
     (work / "one.toml").write_text(scene_text("first", "second"))
     assert fenicsfoam_main(["run", str(work / "one.toml"), "--out", str(out)]) == 0
-    assert outputs_of(out) == ["first.png", "probes.csv", "second.png", "solution.h5", "solution.xdmf",
-                               "summary.json"]
+    assert outputs_of(out) == ["first.png", "probes.csv", "second.png", "solution.h5", "solution.npz",
+                               "solution.xdmf", "summary.json"]
+    assert sorted(json.loads((out / "summary.json").read_text())["files"]) == outputs_of(out)
     (out / "notes.txt").write_text("mine")
     (out / ".solution.stale").mkdir()  # as a killed run leaves them
     (out / ".summary.123.0123abcd.tmp.json").write_text("{")
