@@ -21,7 +21,8 @@ What the number means: the scatter of the prediction over foam realisations of t
 standard deviation itself is uncertain by about ±50 % (a χ² estimate with 2 degrees of freedom). Between table
 nodes a per-seed table is interpolated as the mean table is (``foam_material``). A seed whose run does not
 converge is recorded with its error (and logged) and the steps it completed; a step's standard deviation is over
-the seeds that reached it, NaN with fewer than two.
+the seeds that reached it, NaN with fewer than two. A vector probe (``"KIND:GROUP"``, e.g. a reaction force) gets
+the standard deviation of each of its components, a list of 3 like its value.
 """
 
 from __future__ import annotations
@@ -43,6 +44,8 @@ import numpy as np
 from foambase.files import write_json_atomic
 
 __all__ = ["METHOD", "UncertaintyResult", "run_with_uncertainty", "seed_tables"]
+
+Value = float | list[float]
 
 logger = logging.getLogger(__name__)
 
@@ -94,12 +97,42 @@ def _explicit_regions(scene, table: Path) -> dict[str, dict[str, Any]]:
     return regions
 
 
+def _flatten(probes: dict[str, Value], names) -> list[float]:
+    """The probes' values as one row of numbers (a vector probe as its components)."""
+    row: list[float] = []
+    for name in names:
+        value = probes[name]
+        row += [float(v) for v in value] if isinstance(value, list | tuple) else [float(value)]
+    return row
+
+
+def _unflatten(row, names, sizes: dict[str, int]) -> dict[str, Value]:
+    """The inverse of :func:`_flatten`: ``{name: float}``, or a list for a vector probe."""
+    out: dict[str, Value] = {}
+    i = 0
+    for name in names:
+        n = sizes[name]
+        out[name] = float(row[i]) if n == 1 else [float(v) for v in row[i:i + n]]
+        i += n
+    return out
+
+
+def _minus(a: Value, b: Value) -> Value:
+    return [x - y for x, y in zip(a, b)] if isinstance(a, list | tuple) else a - b
+
+
+def _sizes(names) -> dict[str, int]:
+    from fenicsfoam.scene.kinds import probe_size
+    return {name: probe_size(name) for name in names}
+
+
 @dataclass
 class UncertaintyResult:
     """The nominal :class:`~fenicsfoam.scene.SceneResult` and the per-step standard deviation of its probes."""
 
     nominal: Any                                           #: SceneResult of the mean table
-    probes_std: list[dict[str, float]] = field(default_factory=list)  #: per step of ``nominal.steps``
+    #: per step of ``nominal.steps``: σ of each probe (a list of 3 for a vector probe)
+    probes_std: list[dict[str, Value]] = field(default_factory=list)
     samples: list[dict[str, Any]] = field(default_factory=list)  #: per seed: probes per step done, error if any
     method: str = METHOD
 
@@ -111,33 +144,39 @@ class UncertaintyResult:
         out["uncertainty"] = {"method": self.method, "samples": self.samples}
         return out
 
-    def probe_std(self, name: str, relative_to: str | None = None) -> dict[str, float]:
+    def probe_std(self, name: str, relative_to: str | None = None) -> dict[str, Value]:
         """``{step label: σ}`` of a probe over the seeds, of its change from step ``relative_to`` if given.
 
         The change's σ is that of the per-seed changes (the values at two steps of one seed are correlated, so it
-        is not a combination of the two steps' ``probes_std``).
+        is not a combination of the two steps' ``probes_std``). A vector probe's σ is per component (a list).
         """
         if relative_to is None:
             return {s.label: std[name] for s, std in zip(self.nominal.steps, self.probes_std)}
-        per_seed = [{label: p[name] - s["steps"][relative_to][name] for label, p in s["steps"].items()}
+        size = _sizes([name])[name]
+        per_seed = [{label: _minus(p[name], s["steps"][relative_to][name]) for label, p in s["steps"].items()}
                     for s in self.samples if relative_to in s["steps"]]
         out = {}
         for step in self.nominal.steps:
-            values = [v[step.label] for v in per_seed if step.label in v]
-            out[step.label] = float(np.std(values, ddof=1)) if len(values) > 1 else (
-                0.0 if self.method != METHOD else math.nan)
+            values = np.array([v[step.label] for v in per_seed if step.label in v], dtype=float).reshape(-1, size)
+            std = values.std(axis=0, ddof=1) if len(values) > 1 else np.full(
+                size, 0.0 if self.method != METHOD else math.nan)
+            out[step.label] = float(std[0]) if size == 1 else [float(v) for v in std]
         return out
 
     def table(self) -> str:
-        """Probes per step as value ± standard deviation (lengths in mm, angles in degrees)."""
-        from fenicsfoam.scene import PROBE_UNITS
-        scale = {"m": (1e3, "mm"), "deg": (1.0, "deg")}
+        """Probes per step as value ± standard deviation (mm, degrees, N, cm³; vectors per component)."""
+        from fenicsfoam.scene.kinds import probe_unit
+        scale = {"m": (1e3, "mm"), "deg": (1.0, "deg"), "N": (1.0, "N"), "m3": (1e6, "cm3")}
         lines = [f"scene {self.nominal.scene.name}: probes ± standard deviation over {len(self.samples)} foam seeds"]
         for step, std in zip(self.nominal.steps, self.probes_std):
             values = []
             for name, v in step.probes.items():
-                k, unit = scale[PROBE_UNITS[name]]
-                values.append(f"{name} = {v * k:.4g} ± {std[name] * k:.2g} {unit}")
+                k, unit = scale[probe_unit(name)]
+                if isinstance(v, list | tuple):
+                    values.append(f"{name} = (" + ", ".join(f"{a * k:.4g} ± {b * k:.2g}" for a, b in zip(v, std[name]))
+                                  + f") {unit}")
+                else:
+                    values.append(f"{name} = {v * k:.4g} ± {std[name] * k:.2g} {unit}")
             lines.append(f"{step.label:>10s}: " + ", ".join(values))
         return "\n".join(lines)
 
@@ -176,9 +215,11 @@ def run_with_uncertainty(source, out_dir: str | os.PathLike | None = None, *,
     nominal = run_scene(scene, out_dir, comm=comm)
     labels = [s.label for s in nominal.steps]
     result = UncertaintyResult(nominal)
+    sizes = _sizes(scene.probes)
+    width = sum(sizes.values())
     if not any(r.material == "foam" for r in scene.regions):
         result.method = "no foam region: no table scatter to propagate"
-        result.probes_std = [dict.fromkeys(s.probes, 0.0) for s in nominal.steps]
+        result.probes_std = [_unflatten(np.zeros(width), scene.probes, sizes) for _ in nominal.steps]
     else:
         values: dict[str, list[list[float]]] = {label: [] for label in labels}
         tmp = comm.bcast(tempfile.mkdtemp(prefix="fenicsfoam-seeds-") if comm.rank == 0 else None, root=0)
@@ -210,15 +251,15 @@ def run_with_uncertainty(source, out_dir: str | os.PathLike | None = None, *,
                 result.samples.append(sample)
                 for label, probes in sample["steps"].items():
                     if label in values:
-                        values[label].append([probes[name] for name in scene.probes])
+                        values[label].append(_flatten(probes, scene.probes))
         finally:
             comm.Barrier()
             if comm.rank == 0:
                 shutil.rmtree(tmp, ignore_errors=True)
         for label in labels:
-            rows = np.array(values[label]).reshape(-1, len(scene.probes))
-            std = rows.std(axis=0, ddof=1) if len(rows) > 1 else np.full(len(scene.probes), math.nan)
-            result.probes_std.append({name: float(v) for name, v in zip(scene.probes, std)})
+            rows = np.array(values[label], dtype=float).reshape(-1, width)
+            std = rows.std(axis=0, ddof=1) if len(rows) > 1 else np.full(width, math.nan)
+            result.probes_std.append(_unflatten(std, scene.probes, sizes))
     if out_dir is not None and comm.rank == 0:
         write_json_atomic(Path(out_dir) / "summary.json", result.summary())
     comm.Barrier()

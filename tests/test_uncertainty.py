@@ -154,6 +154,31 @@ def test_a_seed_that_fails_counts_for_the_steps_it_completed(tmp_path, monkeypat
     assert result.probes_std[1]["tip_deflection"] == pytest.approx(np.std(two, ddof=1), rel=1e-9)
 
 
+def test_vector_probes_get_a_std_per_component(tmp_path):
+    """Linear beam under gravity, seeds differing only in E: the tip's mean displacement scales as 1/E_s in every
+    component (σ per component = the closed form), and the clamp's reaction is the weight whatever E_s (σ = 0)."""
+    scene = beam("linear", half_step=True)
+    scene["probes"] = ["displacement:tip", "reaction_force:clamped", "tip_deflection"]
+    samples = synthetic_samples(tmp_path / "samples.csv", 1.0, only={"iso_E"})
+    result = run_with_uncertainty(scene, tmp_path / "out", samples_csv=samples, comm=MPI.COMM_SELF)
+    weight = abs(result.nominal.steps[1].probes["reaction_force:clamped"][2])
+    assert weight > 0
+    for step, std in zip(result.nominal.steps, result.probes_std):
+        u = step.probes["displacement:tip"]
+        expected = [np.std([c / (1.0 + d) for d in DEVIATION.values()], ddof=1) for c in u]
+        assert isinstance(std["displacement:tip"], list) and len(std["displacement:tip"]) == 3
+        assert std["displacement:tip"] == pytest.approx(expected, rel=1e-9, abs=1e-9 * abs(u[2]))
+        assert std["displacement:tip"][2] == pytest.approx(std["tip_deflection"], rel=1e-9)
+        assert std["reaction_force:clamped"] == pytest.approx([0.0] * 3, abs=1e-9 * weight)
+    change = result.probe_std("displacement:tip", relative_to="half")
+    assert change["half"] == [0.0] * 3
+    sigma = result.probes_std[1]["displacement:tip"]
+    assert change["gravity"] == pytest.approx([s / 2 for s in sigma], rel=1e-9, abs=1e-9 * sigma[2])
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["steps"][1]["probes_std"]["displacement:tip"] == result.probes_std[1]["displacement:tip"]
+    assert "displacement:tip = (" in result.table() and " N" in result.table()
+
+
 # --------------------------------------------------------------------------------------------------
 # fenicsfoam run --uncertainty
 # --------------------------------------------------------------------------------------------------
