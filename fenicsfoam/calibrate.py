@@ -12,19 +12,24 @@ scene file), read by :func:`read_calibration`.
 
 Method. A foam's moduli are proportional to ``E_solid`` (its mass is not), so with the linear model the
 displacement is exactly ``u = u_D + u_f / E_solid`` (``u_D``: the response to prescribed motions, ``u_f``: to
-gravity at unit modulus), and a probe that is affine in ``u`` (``tip_deflection``, ``center_height``) is
-``p = a + b / E_solid``. Two runs give ``a`` and ``b``, hence ``E_solid = b / (target − a)`` and the reachable
-range (``a`` excluded, on the side of ``b``), and a third run checks it. That affine model is also the initial
-guess otherwise (nonlinear models, ``center_rotation``): the root is then bracketed from the guess by steps of a
-factor 2 in ``E_solid`` and found by Brent's method on ``log E_solid`` (``scipy.optimize.brentq``) to a relative
-tolerance ``rtol`` of ``E_solid``. Runs are memoised, so a value is never computed twice.
+gravity at unit modulus), and a probe that is affine in ``u`` (``tip_deflection``, ``center_height``,
+``displacement:GROUP``) is ``p = a + b / E_solid``. Two runs give ``a`` and ``b``, hence
+``E_solid = b / (target − a)`` and the reachable range (``a`` excluded, on the side of ``b``), and a third run
+checks it. That affine model is also the initial guess otherwise (nonlinear models, ``center_rotation``, reactions
+and volumes): the root is then bracketed from the guess by steps of a factor 2 in ``E_solid`` and found by
+Brent's method on ``log E_solid`` (``scipy.optimize.brentq``) to a relative tolerance ``rtol`` of ``E_solid``.
+Runs are memoised, so a value is never computed twice.
 
-Command line: ``fenicsfoam calibrate SCENE.toml --probe NAME --step LABEL --target VALUE [--relative-to LABEL]
---out DIR`` (:data:`CALIBRATE`).
+A group probe (``"KIND:GROUP"``, e.g. ``reaction_force:pad``, a blocked force measured on a load cell) may be
+matched too; a vector probe needs the component to match (``component = "x"``, ``"y"`` or ``"z"``).
 
-Errors (:class:`CalibrationError`, raised before any run where possible): an unknown probe or step, a
-non-finite target, a scene without foam regions or whose foam regions disagree on ``E_solid``, a probe that does
-not depend on ``E_solid``, a target outside the reachable range (wrong sign, or beyond the asymptote of an
+Command line: ``fenicsfoam calibrate SCENE.toml --probe NAME [--component x|y|z] --step LABEL --target VALUE
+[--relative-to LABEL] --out DIR`` (:data:`CALIBRATE`).
+
+Errors (:class:`CalibrationError`, raised before any run where possible): an unknown probe or step, a vector
+probe without a component (or a component of a number), a non-finite target, a scene without foam regions or
+whose foam regions disagree on ``E_solid``, a probe that does not depend on ``E_solid`` (e.g. the reaction to
+gravity and forces alone), a target outside the reachable range (wrong sign, or beyond the asymptote of an
 infinitely stiff solid), a target not bracketed within ``E_range`` or needing a solid so soft that the scene no
 longer converges.
 """
@@ -45,7 +50,9 @@ from foambase.errors import InputError
 from foambase.files import write_json_atomic
 
 __all__ = [
+    "AFFINE_GROUP_KINDS",
     "AFFINE_PROBES",
+    "COMPONENTS",
     "CALIBRATE",
     "Calibration",
     "CalibrationError",
@@ -57,8 +64,13 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-#: Probes that are affine functions of the displacement (integrals of u): exact in two runs with the linear model.
+#: Probes that are affine functions of the displacement (integrals of u): exact in two runs with the linear model
+#: (with the group probe kind ``displacement:GROUP``, :data:`AFFINE_GROUP_KINDS`).
 AFFINE_PROBES = frozenset({"tip_deflection", "center_height"})
+#: Group probe kinds (``"KIND:GROUP"``) that are affine functions of the displacement.
+AFFINE_GROUP_KINDS = frozenset({"displacement"})
+#: The components a vector probe's ``component`` may name.
+COMPONENTS = ("x", "y", "z")
 #: Name of the file :func:`calibrate_E_solid` writes in ``out_dir``.
 CALIBRATION_JSON = "calibration.json"
 
@@ -85,12 +97,13 @@ class Calibration:
     scene: str = ""
     E_solid_initial: float = math.nan  #: the scene's own E_solid (Pa), the search's starting point
     history: tuple[tuple[float, float], ...] = field(default_factory=tuple)  #: (E_solid, probe) of every run
+    component: str | None = None      #: the component matched of a vector probe (``"x"``, ``"y"``, ``"z"``)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict: ``E_solid``, ``probe``, ``target``, ``achieved``, ``runs`` and the details."""
-        return {"E_solid": self.E_solid, "probe": self.probe, "target": self.target, "achieved": self.achieved,
-                "runs": self.runs, "step": self.step, "relative_to": self.relative_to, "method": self.method,
-                "scene": self.scene, "E_solid_initial": self.E_solid_initial,
+        return {"E_solid": self.E_solid, "probe": self.probe, "component": self.component, "target": self.target,
+                "achieved": self.achieved, "runs": self.runs, "step": self.step, "relative_to": self.relative_to,
+                "method": self.method, "scene": self.scene, "E_solid_initial": self.E_solid_initial,
                 "history": [list(h) for h in self.history]}
 
 
@@ -118,13 +131,29 @@ def scene_with_E_solid(data: Mapping[str, Any], E_solid: float) -> dict[str, Any
     return out
 
 
-def _validate(data: dict[str, Any], base: Path | None, probe: str, step: str, relative_to: str | None,
-              target: float) -> tuple[Any, float]:
-    """Check the request against the scene (before any run); returns the parsed scene and the initial E_solid."""
-    from fenicsfoam.scene import PROBES, parse_scene
+def _check_probe(probe: str, component: str | None) -> None:
+    """A known probe name (or ``KIND:GROUP``), with a component exactly when it is a vector."""
+    from fenicsfoam.scene import PROBES
+    from fenicsfoam.scene.kinds import GROUP_PROBE_KINDS, probe_size
 
-    if probe not in PROBES:
-        raise CalibrationError(f"probe {probe!r} is unknown; valid: {', '.join(PROBES)}")
+    kind, colon, group = probe.partition(":") if isinstance(probe, str) else ("", "", "")
+    if not (probe in PROBES or (colon and kind in GROUP_PROBE_KINDS and group)):
+        raise CalibrationError(f"probe {probe!r} is unknown; valid: {', '.join(PROBES)}, or KIND:GROUP with KIND "
+                               f"one of {', '.join(GROUP_PROBE_KINDS)}")
+    if probe_size(probe) > 1 and component not in COMPONENTS:
+        given = "" if component is None else f" ({component!r} is not one)"
+        raise CalibrationError(f"probe {probe!r} is a vector (x, y, z): give the component to match, 'x', 'y' or "
+                               f"'z' (--component){given}")
+    if probe_size(probe) == 1 and component is not None:
+        raise CalibrationError(f"probe {probe!r} is a number, not a vector: give no component (got {component!r})")
+
+
+def _validate(data: dict[str, Any], base: Path | None, probe: str, step: str, relative_to: str | None,
+              target: float, component: str | None = None) -> tuple[Any, float]:
+    """Check the request against the scene (before any run); returns the parsed scene and the initial E_solid."""
+    from fenicsfoam.scene import parse_scene
+
+    _check_probe(probe, component)
     if isinstance(target, bool) or not isinstance(target, int | float) or not math.isfinite(target):
         raise CalibrationError(f"target {target!r} must be a finite number (SI units, angles in degrees)")
     probes = list(data.get("probes", []))
@@ -151,9 +180,10 @@ def _validate(data: dict[str, Any], base: Path | None, probe: str, step: str, re
 class _Runs:
     """Memoised probe values ``p(E_solid)`` from scene runs."""
 
-    def __init__(self, data, base, probe, step, relative_to, comm):
+    def __init__(self, data, base, probe, step, relative_to, comm, component=None):
         self.data, self.base, self.probe, self.step, self.relative_to, self.comm = (data, base, probe, step,
                                                                                      relative_to, comm)
+        self.index = None if component is None else COMPONENTS.index(component)
         self.values: dict[float, float] = {}
 
     def __call__(self, E: float) -> float:
@@ -161,7 +191,8 @@ class _Runs:
         if E not in self.values:
             result = run_scene(parse_scene(scene_with_E_solid(self.data, E), self.base), comm=self.comm)
             values = result.probe(self.probe, relative_to=self.relative_to)
-            self.values[E] = float(values[self.step])
+            value = values[self.step]
+            self.values[E] = float(value if self.index is None else value[self.index])
             logger.info("calibration run %d: E_solid = %.10g Pa -> %s = %.10g", len(self.values), E, self.probe,
                         self.values[E])
         return self.values[E]
@@ -172,8 +203,8 @@ class _Runs:
 
 
 def calibrate_E_solid(source, probe: str, step: str, target: float, *, relative_to: str | None = None,
-                      rtol: float = 1e-10, E_range: tuple[float, float] | None = None, max_runs: int = 60,
-                      out_dir: str | os.PathLike | None = None, comm=None) -> Calibration:
+                      component: str | None = None, rtol: float = 1e-10, E_range: tuple[float, float] | None = None,
+                      max_runs: int = 60, out_dir: str | os.PathLike | None = None, comm=None) -> Calibration:
     """Find the ``E_solid`` of every foam region for which ``probe`` at ``step`` equals ``target``.
 
     Parameters
@@ -187,6 +218,9 @@ def calibrate_E_solid(source, probe: str, step: str, target: float, *, relative_
         The measured value, in the probe's SI unit (m, or degrees for ``center_rotation``).
     relative_to
         Calibrate the change of the probe from this step (e.g. ``"rest"`` for Table I's changes).
+    component
+        For a vector probe (``reaction_force:GROUP``, ``displacement:GROUP``, ``rotation:GROUP``): the component
+        matched, ``"x"``, ``"y"`` or ``"z"``; ``None`` (required) for a number.
     rtol
         Relative tolerance on ``E_solid`` of the root find.
     E_range
@@ -217,13 +251,14 @@ def calibrate_E_solid(source, probe: str, step: str, target: float, *, relative_
         from foambase.mpi import on_rank0
         on_rank0(comm, lambda: check_output_dir(out_dir, "out_dir"), f"the output directory {out_dir} cannot be used")
     data, base = _load_raw(source)
-    scene, E0 = _validate(data, base, probe, step, relative_to, target)
+    scene, E0 = _validate(data, base, probe, step, relative_to, target, component)
     target = float(target)
     lo, hi = (E0 * 1e-3, E0 * 1e3) if E_range is None else (float(E_range[0]), float(E_range[1]))
     if not (0 < lo < hi and math.isfinite(hi)):
         raise CalibrationError(f"E_range {E_range!r} must be two increasing positive moduli (Pa)")
-    runs = _Runs(data, base, probe, step, relative_to, comm)
-    what = f"{probe} at step {step!r}" + (f" relative to {relative_to!r}" if relative_to else "")
+    runs = _Runs(data, base, probe, step, relative_to, comm, component)
+    what = (f"{probe}" + (f" ({component})" if component else "") + f" at step {step!r}"
+            + (f" relative to {relative_to!r}" if relative_to else ""))
 
     def value(E: float) -> float:
         if len(runs.values) >= max_runs and E not in runs.values:
@@ -244,7 +279,7 @@ def calibrate_E_solid(source, probe: str, step: str, target: float, *, relative_
     if b == 0.0 or abs(b / E0) <= 1e-12 * max(abs(p0), abs(p1)):
         raise CalibrationError(f"{what} does not depend on E_solid ({p0!r} at {E0:.6g} Pa, {p1!r} at {E1:.6g} "
                                f"Pa): target {target!r} cannot be reached by calibrating E_solid")
-    exact = scene.model == "linear" and probe in AFFINE_PROBES
+    exact = scene.model == "linear" and (probe in AFFINE_PROBES or probe.partition(":")[0] in AFFINE_GROUP_KINDS)
     if (target - a) * b <= 0.0:
         side = "above" if b > 0 else "below"
         message = (f"target {target!r} is not reachable: {what} is {p0:.6g} at E_solid = {E0:.6g} Pa and tends "
@@ -294,7 +329,7 @@ def calibrate_E_solid(source, probe: str, step: str, target: float, *, relative_
         achieved = value(E)
     calibration = Calibration(E_solid=float(E), probe=probe, step=step, target=target, achieved=float(achieved),
                               runs=len(runs.values), relative_to=relative_to, method=method, scene=scene.name,
-                              E_solid_initial=float(E0), history=runs.history)
+                              E_solid_initial=float(E0), history=runs.history, component=component)
     logger.info("calibrated E_solid = %.10g Pa (%s = %.10g, target %.10g) in %d runs", calibration.E_solid, probe,
                 calibration.achieved, target, calibration.runs)
     if out_dir is not None:
@@ -337,7 +372,10 @@ def _calibrate_arguments(parser) -> None:
     from foambase.cli import nonempty_path
 
     parser.add_argument("scene", type=nonempty_path, help="the scene file (TOML); its foam regions share one E_solid")
-    parser.add_argument("--probe", required=True, help="the probe matched (e.g. tip_deflection)")
+    parser.add_argument("--probe", required=True,
+                        help="the probe matched (e.g. tip_deflection, or KIND:GROUP such as reaction_force:pad)")
+    parser.add_argument("--component", choices=COMPONENTS, default=None,
+                        help="the component matched of a vector probe (KIND:GROUP other than volume)")
     parser.add_argument("--step", required=True, help="label of the load step at which it is matched")
     parser.add_argument("--target", type=float, required=True,
                         help="the measured value in the probe's SI unit (m; degrees for center_rotation)")
@@ -367,10 +405,12 @@ def _calibrate_run(args) -> int:
 
     comm = MPI.COMM_WORLD
     calibration = calibrate_E_solid(args.scene, args.probe, args.step, args.target, relative_to=args.relative_to,
-                                    rtol=args.rtol, E_range=None if args.E_range is None else tuple(args.E_range),
+                                    component=args.component, rtol=args.rtol,
+                                    E_range=None if args.E_range is None else tuple(args.E_range),
                                     max_runs=args.max_runs, out_dir=args.out, comm=comm)
     if comm.rank == 0:
-        what = f"{calibration.probe} at {calibration.step}" + (
+        what = f"{calibration.probe}" + (f" ({calibration.component})" if calibration.component else "") + (
+            f" at {calibration.step}") + (
             f" relative to {calibration.relative_to}" if calibration.relative_to else "")
         print(f"E_solid = {calibration.E_solid:.10g} Pa: {what} = {calibration.achieved:.10g} "
               f"(target {calibration.target:.10g}) in {calibration.runs} runs ({calibration.method})")

@@ -57,6 +57,24 @@ def test_recovers_a_known_E_solid_on_the_beam(model, tmp_path):
     assert read_calibration(tmp_path / "calibration.json") == cal.E_solid
 
 
+def test_recovers_a_known_E_solid_from_a_component_of_a_group_probe():
+    """The tip face's mean vertical displacement (affine in u: exact in 3 runs), and a blocked force: the tip held
+    5 mm down by a motion, its reaction's z component (proportional to E_solid, found by Brent's method)."""
+    scene = beam("linear")
+    scene["probes"] = ["displacement:tip"]
+    target = synthetic(scene, "displacement:tip", "gravity")[2]
+    cal = calibrate_E_solid(scene, "displacement:tip", "gravity", target, component="z", comm=MPI.COMM_SELF)
+    assert cal.E_solid == pytest.approx(E_TRUE, rel=1e-6) and cal.runs == 3 and cal.method.startswith("affine")
+    assert cal.to_dict()["component"] == "z"
+    pushed = beam("linear")
+    pushed["probes"] = ["reaction_force:tip"]
+    pushed["loads"]["motion"] = {"cell": {"group": "tip"}}
+    pushed["steps"][0]["motions"] = {"cell": {"translation": [0.0, 0.0, -0.005]}}
+    force = synthetic(pushed, "reaction_force:tip", "gravity")[2]
+    cal = calibrate_E_solid(pushed, "reaction_force:tip", "gravity", force, component="z", comm=MPI.COMM_SELF)
+    assert cal.E_solid == pytest.approx(E_TRUE, rel=1e-6) and cal.method.startswith("Brent")
+
+
 @pytest.mark.slow
 def test_recovers_a_known_E_solid_from_the_tripod_torsion():
     """A nonlinear probe (the Kabsch twist) of a nonlinear model, as a change from rest."""
@@ -87,6 +105,11 @@ def test_a_target_beyond_the_searched_moduli_is_unreachable():
     ({"relative_to": "gravity"}, r"relative_to 'gravity' is the calibrated step itself"),
     ({"target": math.nan}, r"target nan must be a finite number"),
     ({"E_range": (5e6, 1e6)}, r"E_range \(5000000\.0, 1000000\.0\) must be two increasing positive moduli"),
+    ({"probe": "reaction_force:clamped"}, r"probe 'reaction_force:clamped' is a vector \(x, y, z\): give the component "
+                                          r"to match, 'x', 'y' or 'z' \(--component\)$"),
+    ({"probe": "displacement:tip", "component": "w"}, r"'displacement:tip' is a vector .*\('w' is not one\)"),
+    ({"component": "z"}, r"probe 'tip_deflection' is a number, not a vector: give no component \(got 'z'\)"),
+    ({"probe": "strain:tip"}, r"probe 'strain:tip' is unknown; valid: .* KIND:GROUP with KIND one of reaction_force"),
 ])
 def test_bad_requests_fail_before_any_run(monkeypatch, change, match):
     def no_run(*args, **kwargs):
