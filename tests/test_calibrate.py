@@ -75,6 +75,15 @@ def test_recovers_a_known_E_solid_from_a_component_of_a_group_probe():
     assert cal.E_solid == pytest.approx(E_TRUE, rel=1e-6) and cal.method.startswith("Brent")
 
 
+@pytest.mark.parametrize("model", ["linear", "corotational"])
+def test_the_reaction_to_gravity_alone_does_not_depend_on_E_solid(model):
+    """The clamp carries the weight whatever the modulus: refused after the two affine runs, not searched."""
+    scene = beam(model)
+    with pytest.raises(CalibrationError, match=r"reaction_force:clamped \(z\) at step 'gravity' does not depend "
+                                               r"on E_solid"):
+        calibrate_E_solid(scene, "reaction_force:clamped", "gravity", 0.13, component="z", comm=MPI.COMM_SELF)
+
+
 @pytest.mark.slow
 def test_recovers_a_known_E_solid_from_the_tripod_torsion():
     """A nonlinear probe (the Kabsch twist) of a nonlinear model, as a change from rest."""
