@@ -38,6 +38,25 @@ def launcher_rank() -> int:
     return 0
 
 
+class _StderrHandler(logging.StreamHandler):
+    """A handler writing to whatever ``sys.stderr`` is when a record is emitted, not when it was made.
+
+    A command run more than once in a process (tests capturing stderr, notebooks) would otherwise keep writing to the
+    stream of its first call, which may be closed by then.
+    """
+
+    def __init__(self) -> None:
+        super().__init__()
+
+    @property
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value) -> None:  # StreamHandler.__init__ assigns it; the property always reads sys.stderr
+        pass
+
+
 def setup_logging(verbosity: int = 0, rank: int | None = None) -> None:
     """Log to stderr: rank 0 at :data:`LEVELS` ``[verbosity]``, the other ranks at ERROR (with their rank).
 
@@ -52,7 +71,7 @@ def setup_logging(verbosity: int = 0, rank: int | None = None) -> None:
     rank = launcher_rank() if rank is None else rank
     level = LEVELS[min(max(verbosity, 0), len(LEVELS) - 1)] if rank == 0 else logging.ERROR
     prefix = "" if rank == 0 else f"[rank {rank}] "
-    handler = logging.StreamHandler(sys.stderr)
+    handler = _StderrHandler()
     handler.setLevel(level)
     handler.setFormatter(logging.Formatter(f"%(levelname)s {prefix}%(name)s: %(message)s"))
     logging.basicConfig(level=level, handlers=[handler], force=True)

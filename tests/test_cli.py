@@ -4,6 +4,7 @@
 ``mpirun -n 2`` exits like the serial run. The ``mpirun`` case spawns its own ``mpirun`` (not marked ``mpi``).
 """
 
+import io
 import json
 import logging
 import os
@@ -161,6 +162,23 @@ def test_logging_setup_filters_the_compilers_info_lines(capsys):
     err = capsys.readouterr().err
     assert "running build_ext" not in err and "WARNING fenicsfoam.solver: a warning" in err
     assert "INFO root: gcc -c form.c" in err and "rank 1 is quiet" not in err
+
+
+def test_logging_writes_to_the_current_stderr(monkeypatch):
+    """A record goes to the ``sys.stderr`` of the moment it is emitted, not to a stream closed since set-up."""
+    root = logging.getLogger()
+    saved = root.level, root.handlers[:]
+    first, second = io.StringIO(), io.StringIO()
+    try:
+        monkeypatch.setattr(sys, "stderr", first)
+        setup_logging(0, rank=0)
+        first.close()
+        monkeypatch.setattr(sys, "stderr", second)
+        logging.getLogger("fenicsfoam.solver").warning("after the stream changed")
+    finally:
+        root.handlers[:] = saved[1]
+        root.setLevel(saved[0])
+    assert second.getvalue() == "WARNING fenicsfoam.solver: after the stream changed\n"
 
 
 def test_fresh_form_compilation_prints_no_info_line_unless_verbose(tmp_path):
