@@ -2,9 +2,10 @@
 
 The cell problem
 ----------------
-For a macroscopic strain ``E`` find the periodic strain ``ε = E + ε̃`` of the unit cube, ``ε̃`` compatible with
-zero mean, such that ``div σ = 0`` with ``σ = C(x) : ε``. The homogenized stiffness is read from the volume
-averages: ``C_hom E = ⟨σ⟩``; six unit strains give its six columns.
+For a macroscopic strain ``E`` find the periodic strain ``ε = E + ε̃`` of the box ``(L1, L2, L3)`` (default the
+unit cube; voxel sizes ``h_j = L_j/N_j``), ``ε̃`` compatible with zero mean, such that ``div σ = 0`` with
+``σ = C(x) : ε``. The homogenized stiffness is read from the volume averages: ``C_hom E = ⟨σ⟩``; six unit strains
+give its six columns.
 
 Internally strains and stiffnesses are in **Mandel** form (Voigt order, shear components times ``√2``; see
 :mod:`homogenization.tensors`), so that the Euclidean inner product of 6-vectors is the tensor one, and norms
@@ -121,17 +122,21 @@ class FFTConvergenceError(NotConvergedError):
 # --------------------------------------------------------------------------------------------------
 # Discrete wave vectors
 # --------------------------------------------------------------------------------------------------
-def wave_directions(shape: tuple[int, int, int], discretization: str = "rotated") -> np.ndarray:
+def wave_directions(shape: tuple[int, int, int], discretization: str = "rotated",
+                    box: Sequence[float] | None = None) -> np.ndarray:
     """Unit discrete wave vectors ``n = k/|k|`` on the real-FFT half spectrum, zero where ``G = 0``.
 
     Parameters
     ----------
     shape
-        Grid ``(N1, N2, N3)`` of the unit cube (voxel sizes ``h_j = 1/N_j``).
+        Grid ``(N1, N2, N3)``.
     discretization
-        ``"spectral"``: ``k_j = 2π m_j``, with ``n = 0`` at ``m = 0`` and, on even axes, wherever some
+        ``"spectral"``: ``k_j = 2π m_j / L_j``, with ``n = 0`` at ``m = 0`` and, on even axes, wherever some
         ``m_j = −N_j/2`` (Nyquist). ``"rotated"``: ``k_j = (2/h_j) sin(π m_j/N_j) ∏_{l≠j} cos(π m_l/N_l)``,
         with ``n = 0`` where ``|k|`` vanishes (``m = 0`` and the hourglass modes).
+    box
+        Lengths ``(L1, L2, L3)`` of the periodic box; voxel sizes ``h_j = L_j/N_j``. Default: the unit cube
+        (``h_j = 1/N_j``). Only the ratios of the ``L_j`` matter (``n`` is a direction).
 
     Returns
     -------
@@ -142,12 +147,13 @@ def wave_directions(shape: tuple[int, int, int], discretization: str = "rotated"
     if discretization not in DISCRETIZATIONS:
         raise InputError(f"discretization must be one of {DISCRETIZATIONS}, got {discretization!r}")
     N = tuple(int(s) for s in shape)
+    L = _check_box(box)
     m = [np.fft.fftfreq(N[0], 1.0 / N[0]), np.fft.fftfreq(N[1], 1.0 / N[1]), np.arange(N[2] // 2 + 1.0)]
     if N[2] % 2 == 0:
         m[2][-1] = -N[2] / 2  # the rfft's last plane is the Nyquist one
     grids = np.meshgrid(*m, indexing="ij", sparse=True)
     if discretization == "spectral":
-        comps = [2 * np.pi * g for g in grids]
+        comps = [2 * np.pi * g / L_j for g, L_j in zip(grids, L)]
         nyquist = np.zeros(grids[0].shape[:1] + grids[1].shape[1:2] + grids[2].shape[2:], dtype=bool)
         for g, n_j in zip(grids, N):
             if n_j % 2 == 0:
@@ -156,7 +162,8 @@ def wave_directions(shape: tuple[int, int, int], discretization: str = "rotated"
         half = [np.pi * g / n_j for g, n_j in zip(grids, N)]
         s = [np.sin(q) for q in half]
         c = [np.cos(q) for q in half]
-        comps = [2 * N[0] * s[0] * c[1] * c[2], 2 * N[1] * c[0] * s[1] * c[2], 2 * N[2] * c[0] * c[1] * s[2]]
+        inv_h = [2 * n_j / L_j for n_j, L_j in zip(N, L)]  # 2/h_j
+        comps = [inv_h[0] * s[0] * c[1] * c[2], inv_h[1] * c[0] * s[1] * c[2], inv_h[2] * c[0] * c[1] * s[2]]
     k = np.empty((3, N[0], N[1], N[2] // 2 + 1))
     for j in range(3):
         k[j] = comps[j]
@@ -236,7 +243,7 @@ class _Workspace:
     the callers fold into their :meth:`axpy` coefficients.
     """
 
-    def __init__(self, phases, stiffnesses, discretization, threads, n_vectors):
+    def __init__(self, phases, stiffnesses, discretization, threads, n_vectors, box=None):
         self.shape = phases.shape
         N1, N2, N3 = self.shape
         self.size = N1 * N2 * N3
@@ -252,11 +259,11 @@ class _Workspace:
         self.fft_calls = 0
         self.native = _native.load()
         if self.native is not None:
-            self.n = wave_directions(self.shape, discretization)
+            self.n = wave_directions(self.shape, discretization, box)
         else:
             # n repeated along the last axis, so that the numpy Fourier kernel runs on float64 views of the
             # complex spectrum ((re, im) pairs) without complex × real casting.
-            self.n2 = np.repeat(wave_directions(self.shape, discretization), 2, axis=-1)
+            self.n2 = np.repeat(wave_directions(self.shape, discretization, box), 2, axis=-1)
         self.vectors = [np.empty((6, N1, N2, N3)) for _ in range(n_vectors)]
         # Constitutive update σ = C_b ε + Σ_{p≠b} m_p (C_p − C_b) ε, b = the most frequent phase (no mask needed);
         # the matrices map Mandel strain to tensor stress components.
@@ -506,6 +513,19 @@ def _check_materials(materials, ids) -> dict[int, np.ndarray]:
     return out
 
 
+def _check_box(box) -> tuple[float, float, float]:
+    """``(L1, L2, L3)`` as floats (the unit cube if ``box`` is None), or an InputError naming the bad value."""
+    if box is None:
+        return (1.0, 1.0, 1.0)
+    try:
+        L = tuple(float(b) for b in box)
+    except (TypeError, ValueError):
+        raise InputError(f"box must be three positive lengths (L1, L2, L3), got {box!r}") from None
+    if len(L) != 3 or not all(np.isfinite(b) and b > 0.0 for b in L):
+        raise InputError(f"box must be three positive finite lengths (L1, L2, L3), got {box!r}")
+    return L
+
+
 def _check_macro_strains(macro_strains) -> np.ndarray:
     if macro_strains is None:
         return np.eye(6)
@@ -632,6 +652,7 @@ def homogenize_fft(
     *,
     scheme: str = "cg",
     discretization: str = "rotated",
+    box: Sequence[float] | None = None,
     tol: float = 1e-6,
     maxiter: int | None = None,
     threads: int | None = None,
@@ -647,7 +668,7 @@ def homogenize_fft(
     ----------
     phases
         ``(N1, N2, N3)`` integer (or bool) image of phase ids; array axis *a* is coordinate ``x_a`` and voxel
-        ``[i, j, k]`` is centred at ``((i+½)/N1, (j+½)/N2, (k+½)/N3)`` in the periodic unit cube.
+        ``[i, j, k]`` is centred at ``((i+½) h1, (j+½) h2, (k+½) h3)`` in the periodic box, ``h_a = L_a/N_a``.
     materials
         ``materials[p]`` is the 6×6 Voigt stiffness of phase ``p`` (a list indexed by phase id or a dict);
         symmetric positive definite, or exactly zero for a void phase. Ids absent from the image are ignored.
@@ -656,6 +677,11 @@ def homogenize_fft(
         :func:`reference_medium`; refuses a zero-stiffness phase).
     discretization
         ``"rotated"`` (Willot, default) or ``"spectral"`` (Moulinec–Suquet), see :func:`wave_directions`.
+    box
+        Lengths ``(L1, L2, L3)`` of the periodic box (any unit: only their ratios matter); default the unit cube,
+        ``h_a = 1/N_a``. For an RVE box of lengths ``L`` with cubic voxels pass ``box=L`` with
+        ``N_a ∝ L_a``, or simply ``box=phases.shape``. Non-cubic voxels are allowed (both discretizations are
+        defined for any ``h_a``); they are what the default gives for a non-cubic grid.
     tol
         Stop when ``‖G[σ]‖ / ‖G[C:E]‖ ≤ tol`` (``0 < tol < 1``).
     maxiter
@@ -708,6 +734,7 @@ def homogenize_fft(
     threads = cpu_count() if threads is None else threads
     if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
         raise InputError(f"threads must be a positive integer, got {threads!r}")
+    L = _check_box(box)
     strains = _check_macro_strains(macro_strains)
     marks = _check_checkpoints(checkpoints, tol)
     mandel = {p: voigt_to_mandel(C) for p, C in stiff.items()}
@@ -720,7 +747,8 @@ def homogenize_fft(
         ref = reference_medium(list(mandel.values()))
 
     keep = return_fields and scheme == "cg"
-    ws = _Workspace(phases, mandel, discretization, int(threads), n_vectors={"cg": 2 + keep, "basic": 1}[scheme])
+    ws = _Workspace(phases, mandel, discretization, int(threads), n_vectors={"cg": 2 + keep, "basic": 1}[scheme],
+                    box=L)
     logger.info("FFT homogenization: %s/%s on %s, %d threads, %.1f MB of work arrays, plan %.2f s",
                 scheme, discretization, phases.shape, threads, ws.nbytes / 1e6, ws.plan_s)
     mean_stress, iterations, residuals, failures = [], [], [], []
@@ -775,7 +803,8 @@ def homogenize_fft(
     C_raw = _stiffness_columns(strains, mean_stress)
     n_iter = max(sum(iterations), 1)
     info = {
-        "scheme": scheme, "discretization": discretization, "shape": list(phases.shape), "tol": tol,
+        "scheme": scheme, "discretization": discretization, "shape": list(phases.shape), "box": list(L),
+        "tol": tol,
         "maxiter": int(maxiter), "threads": int(threads),
         "stopping_criterion": "||G[sigma]|| / ||G[C:E]|| <= tol (L2 norms of Mandel fields)",
         "internal_representation": "Mandel",

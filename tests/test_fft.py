@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from foambase.errors import InputError
 from homogenization.fft import (
     FFTConvergenceError,
     homogenize_fft,
@@ -345,3 +346,76 @@ def test_convergence_error_survives_pickling():
 
     err = pickle.loads(pickle.dumps(FFTConvergenceError("no convergence", 3, [1.0, 0.5])))
     assert (str(err), err.case, err.residuals) == ("no convergence", 3, [1.0, 0.5])
+
+
+# --------------------------------------------------------------------------------------------------
+# Non-cubic periodic boxes (box=(L1, L2, L3), voxel sizes h_j = L_j/N_j)
+# --------------------------------------------------------------------------------------------------
+BOX_SHAPE = (8, 12, 6)  # cubic voxels in the box (8, 12, 6) h: box=BOX_SHAPE
+VOIGT_PAIRS = [(0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1)]
+
+
+def permute_voigt(C, perm):
+    """C of the image ``np.transpose(img, perm)``: new axis a is old axis perm[a]."""
+    index = [VOIGT_PAIRS.index(tuple(sorted((perm[a], perm[b])))) for a, b in VOIGT_PAIRS]
+    return C[np.ix_(index, index)]
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+@pytest.mark.parametrize("discretization", ["rotated", "spectral"])
+def test_laminate_in_a_non_cubic_box_is_exact(axis, discretization):
+    img = np.zeros(BOX_SHAPE, dtype=np.int8)
+    index = [slice(None)] * 3
+    index[axis] = slice(1, 5)  # four layers: no Nyquist content on the even grid (spectral is exact too)
+    img[tuple(index)] = 1
+    stiff = isotropic_voigt(1000.0, 0.2)
+    r = homogenize_fft(img, [C_SOFT, stiff], box=BOX_SHAPE, discretization=discretization, tol=1e-12)
+    f = 4 / BOX_SHAPE[axis]
+    assert rel(r.C, laminate([C_SOFT, stiff], [1 - f, f], axis)) < 1e-10
+
+
+def test_homogeneous_non_cubic_box_returns_itself():
+    r = homogenize_fft(np.zeros(BOX_SHAPE, dtype=int), [TI], box=(0.8, 1.2, 0.6))
+    assert rel(r.C, TI) < 1e-12 and r.iterations == [0] * 6 and r.info["box"] == [0.8, 1.2, 0.6]
+
+
+@pytest.mark.parametrize("perm", [(1, 0, 2), (2, 0, 1)])
+def test_permuting_the_axes_of_a_box_permutes_c(perm):
+    rng = np.random.default_rng(5)
+    img = (rng.random(BOX_SHAPE) < 0.4).astype(np.int8)
+    materials = [C_SOFT, isotropic_voigt(8.0, 0.2)]
+    C = homogenize_fft(img, materials, box=BOX_SHAPE, tol=1e-10).C
+    box = [BOX_SHAPE[p] for p in perm]
+    C_perm = homogenize_fft(np.transpose(img, perm), materials, box=box, tol=1e-10).C
+    assert rel(C_perm, C) > 1e-3  # the image is anisotropic: the test can fail
+    assert rel(C_perm, permute_voigt(C, perm)) < 1e-8
+
+
+@pytest.mark.parametrize("discretization", ["rotated", "spectral"])
+def test_box_of_two_periods_gives_the_cube(discretization):
+    """Two periods of a unit-cube image along y, as the box (1, 2, 1) with cubic voxels, have the cube's C; read
+    as the unit cube (the default, voxels twice as thin along y) they do not: the box is really used."""
+    img = sphere_image(9, 0.3, centre=(0.4, 0.5, 0.55))
+    img[:, :, :2] = 2
+    materials = [C_SOFT, isotropic_voigt(6.0, 0.2), TI]
+    kwargs = dict(discretization=discretization, tol=1e-10)
+    C = homogenize_fft(img, materials, **kwargs).C
+    twice = np.concatenate([img, img], axis=1)
+    assert rel(homogenize_fft(twice, materials, box=(1.0, 2.0, 1.0), **kwargs).C, C) < 1e-10
+    assert rel(homogenize_fft(twice, materials, box=twice.shape, **kwargs).C, C) < 1e-10
+    assert rel(homogenize_fft(twice, materials, **kwargs).C, C) > 1e-2
+
+
+def test_unit_box_is_the_default_bit_for_bit():
+    img = sphere_image(8, 0.3)
+    materials = [np.zeros((6, 6)), C_SOFT]
+    default = homogenize_fft(img, materials, tol=1e-8, macro_strains=np.eye(6)[[0, 3]])
+    for box in [(1, 1, 1), (4.0, 4.0, 4.0)]:  # a power-of-two scale leaves n = k/|k| bit for bit
+        r = homogenize_fft(img, materials, box=box, tol=1e-8, macro_strains=np.eye(6)[[0, 3]])
+        assert np.array_equal(r.C_raw, default.C_raw, equal_nan=True) and r.residuals == default.residuals
+
+
+@pytest.mark.parametrize("box", [(1.0, 2.0), (1.0, 0.0, 1.0), (1.0, np.nan, 1.0), "abc", 3.0])
+def test_bad_box(box):
+    with pytest.raises(InputError, match="box must be three positive"):
+        homogenize_fft(np.zeros((4, 4, 4), int), [C_SOFT], box=box)
