@@ -719,9 +719,61 @@ def homogenize_fft(
 
     """
     t_start = time.perf_counter()
+    run = _check_inputs(phases, materials, scheme=scheme, discretization=discretization, box=box, tol=tol,
+                        maxiter=maxiter, threads=threads, macro_strains=macro_strains, checkpoints=checkpoints,
+                        return_fields=return_fields)
+    ws = _Workspace(run.phases, run.stiffness, run.discretization, run.threads, box=run.box,
+                    n_vectors={"cg": 2 + run.keep_iterate, "basic": 1}[run.scheme])
+    logger.info("FFT homogenization: %s/%s on %s, %d threads, %.1f MB of work arrays, plan %.2f s",
+                run.scheme, run.discretization, run.phases.shape, run.threads, ws.nbytes / 1e6, ws.plan_s)
+    marks = _Checkpoints(run.marks)
+    setup_s = time.perf_counter() - t_start
+    cases = []
+    try:
+        for case, E_voigt in enumerate(run.strains):
+            cases.append(_solve_case(ws, run, case, E_voigt, marks, callback))
+            if not cases[-1].converged and raise_on_failure:
+                raise FFTConvergenceError(cases[-1].message, case, cases[-1].history)
+            if not cases[-1].converged:
+                logger.warning(cases[-1].message)
+        stats = {"work_bytes": ws.nbytes, "plan_s": ws.plan_s, "fft_s": ws.fft_s, "fft_calls": ws.fft_calls,
+                 "volume_fractions": {str(p): f for p, f in ws.fractions.items()}}
+    finally:
+        ws.close()
+    return _assemble_result(run, cases, stats, marks.summary(run.strains, setup_s), t_start)
+
+
+# --------------------------------------------------------------------------------------------------
+# The pieces of homogenize_fft: checked settings, one load case, checkpoints, the result
+# --------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Run:
+    """The checked inputs of one :func:`homogenize_fft` call (stiffnesses in Mandel form)."""
+
+    phases: np.ndarray
+    stiffness: dict[int, np.ndarray]
+    scheme: str
+    discretization: str
+    box: tuple[float, float, float]
+    tol: float
+    maxiter: int
+    threads: int
+    strains: np.ndarray  #: (n_cases, 6) Voigt macroscopic strains
+    marks: list[float]  #: checkpoint tolerances, loosest first
+    reference: ReferenceMedium | None  #: basic scheme only
+    return_fields: bool
+
+    @property
+    def keep_iterate(self) -> bool:
+        """CG stores its iterate only when the fields are asked for."""
+        return self.return_fields and self.scheme == "cg"
+
+
+def _check_inputs(phases, materials, *, scheme, discretization, box, tol, maxiter, threads, macro_strains,
+                  checkpoints, return_fields) -> _Run:
+    """Every argument checked (a ValueError naming the bad value and what is valid) before any work."""
     phases = _check_phases(phases)
-    ids = np.unique(phases)
-    stiff = _check_materials(materials, ids)
+    stiff = _check_materials(materials, np.unique(phases))
     if scheme not in SCHEMES:
         raise InputError(f"scheme must be one of {SCHEMES}, got {scheme!r}")
     if discretization not in DISCRETIZATIONS:
@@ -745,87 +797,121 @@ def homogenize_fft(
             raise InputError(f"scheme='basic' cannot handle the zero-stiffness (void) phase(s) {void}: the "
                              "Moulinec–Suquet fixed point does not converge at infinite contrast; use scheme='cg'")
         ref = reference_medium(list(mandel.values()))
+    return _Run(phases=phases, stiffness=mandel, scheme=scheme, discretization=discretization, box=L, tol=tol,
+                maxiter=int(maxiter), threads=int(threads), strains=strains, marks=marks, reference=ref,
+                return_fields=bool(return_fields))
 
-    keep = return_fields and scheme == "cg"
-    ws = _Workspace(phases, mandel, discretization, int(threads), n_vectors={"cg": 2 + keep, "basic": 1}[scheme],
-                    box=L)
-    logger.info("FFT homogenization: %s/%s on %s, %d threads, %.1f MB of work arrays, plan %.2f s",
-                scheme, discretization, phases.shape, threads, ws.nbytes / 1e6, ws.plan_s)
-    mean_stress, iterations, residuals, failures = [], [], [], []
-    fields = {"strain": [], "stress": []} if return_fields else None
-    hits: list[list[tuple]] = [[] for _ in marks]  # per checkpoint, per case: (⟨σ⟩, iterations, seconds, reached)
-    iter_s = iter_fft_s = 0.0
-    setup_s = time.perf_counter() - t_start
-    try:
-        for case, E_voigt in enumerate(strains):
-            E = E_voigt / _MANDEL
-            t0, f0 = time.perf_counter(), ws.fft_s
 
-            def report(it, res, mean, case=case, t0=t0):
-                if callback is not None:
-                    callback(case, it, res)
-                for k, t in enumerate(marks):
-                    if len(hits[k]) == case and res <= t:
-                        hits[k].append((mean.copy(), it, time.perf_counter() - t0, True))
+class _Checkpoints:
+    """Per checkpoint tolerance and load case, the state a run with ``tol = t`` would stop at.
 
-            if scheme == "cg":
-                mean, history, ok, message = _solve_cg(ws, E, tol, maxiter, report, keep)
-            else:
-                mean, history, ok, message = _solve_basic(ws, E, tol, maxiter, report, ref)
-            iter_s += time.perf_counter() - t0
-            iter_fft_s += ws.fft_s - f0
-            for k in range(len(marks)):
-                if len(hits[k]) == case:  # this checkpoint was never reached
-                    hits[k].append((mean, len(history) - 1, time.perf_counter() - t0, False))
-            mean_stress.append(mean)
-            iterations.append(len(history) - 1)
-            residuals.append(history)
-            if not ok:
-                message = f"load case {case} (E = {E_voigt.tolist()}): {message}; residual {history[-1]:.3g} > {tol:g}"
-                if raise_on_failure:
-                    raise FFTConvergenceError(message, case, history)
-                logger.warning(message)
-                failures.append(message)
-            if fields is not None:
-                strain = ws.vectors[0]  # basic: ε
-                if scheme == "cg":  # E + the CG iterate ε̃
-                    strain = ws.vectors[2]
-                    strain += E[:, None, None, None]
-                ws.constitutive(ws.real, strain)
-                fields["strain"].append(strain * _MANDEL[:, None, None, None])
-                fields["stress"].append(ws.real.copy())
-        work_bytes = ws.nbytes
-        plan_s, fft_s, fft_calls = ws.plan_s, ws.fft_s, ws.fft_calls
-    finally:
-        ws.close()
+    ``hits[k][case] = (⟨σ⟩, iterations, seconds since the case started, reached)``.
+    """
 
-    mean_stress = np.array(mean_stress)
-    C_raw = _stiffness_columns(strains, mean_stress)
+    def __init__(self, marks: list[float]):
+        self.marks = marks
+        self.hits: list[list[tuple]] = [[] for _ in marks]
+
+    def record(self, case: int, it: int, res: float, mean: np.ndarray, t0: float) -> None:
+        """Called after every iteration: the first state of ``case`` with residual ≤ t is kept."""
+        for k, t in enumerate(self.marks):
+            if len(self.hits[k]) == case and res <= t:
+                self.hits[k].append((mean.copy(), it, time.perf_counter() - t0, True))
+
+    def finish(self, case: int, mean: np.ndarray, iterations: int, t0: float) -> None:
+        """A checkpoint the case never reached holds its final state, flagged as not reached."""
+        for k in range(len(self.marks)):
+            if len(self.hits[k]) == case:
+                self.hits[k].append((mean, iterations, time.perf_counter() - t0, False))
+
+    def summary(self, strains: np.ndarray, setup_s: float) -> list[dict]:
+        columns = [_stiffness_columns(strains, np.array([h[0] for h in hit])) for hit in self.hits]
+        return [{"tol": t, "C": 0.5 * (C + C.T), "iterations": [h[1] for h in hit],
+                 "wall_s": setup_s + sum(h[2] for h in hit), "converged": all(h[3] for h in hit)}
+                for t, C, hit in zip(self.marks, columns, self.hits)]
+
+
+@dataclass
+class _Case:
+    """One solved load case."""
+
+    mean: np.ndarray  #: ⟨σ⟩ (Voigt)
+    history: list[float]  #: relative residuals, iteration 0 first
+    converged: bool
+    message: str  #: why it did not converge ("" if it did)
+    seconds: float  #: wall time of the solve
+    fft_seconds: float  #: of which in the FFTs
+    fields: tuple[np.ndarray, np.ndarray] | None  #: (strain, stress), Voigt, if asked for
+
+    @property
+    def iterations(self) -> int:
+        return len(self.history) - 1
+
+
+def _solve_case(ws: _Workspace, run: _Run, case: int, E_voigt: np.ndarray, marks: _Checkpoints,
+                callback: Callable | None) -> _Case:
+    """Solve load case ``case`` (macroscopic Voigt strain ``E_voigt``) with the run's scheme."""
+    E = E_voigt / _MANDEL
+    t0, f0 = time.perf_counter(), ws.fft_s
+
+    def report(it, res, mean):
+        if callback is not None:
+            callback(case, it, res)
+        marks.record(case, it, res, mean, t0)
+
+    if run.scheme == "cg":
+        mean, history, ok, message = _solve_cg(ws, E, run.tol, run.maxiter, report, run.keep_iterate)
+    else:
+        mean, history, ok, message = _solve_basic(ws, E, run.tol, run.maxiter, report, run.reference)
+    seconds, fft_seconds = time.perf_counter() - t0, ws.fft_s - f0
+    marks.finish(case, mean, len(history) - 1, t0)
+    if not ok:
+        message = f"load case {case} (E = {E_voigt.tolist()}): {message}; residual {history[-1]:.3g} > {run.tol:g}"
+    fields = _case_fields(ws, run, E) if run.return_fields else None
+    return _Case(mean, history, ok, message, seconds, fft_seconds, fields)
+
+
+def _case_fields(ws: _Workspace, run: _Run, E: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Strain and stress fields (Voigt) of the case just solved."""
+    strain = ws.vectors[0]  # basic: ε
+    if run.scheme == "cg":  # E + the CG iterate ε̃
+        strain = ws.vectors[2]
+        strain += E[:, None, None, None]
+    ws.constitutive(ws.real, strain)
+    return strain * _MANDEL[:, None, None, None], ws.real.copy()
+
+
+def _assemble_result(run: _Run, cases: list[_Case], stats: dict, checkpoints: list[dict],
+                     t_start: float) -> HomogenizationResult:
+    """C from the load cases' mean stresses, with the settings, timings and checkpoints in ``info``."""
+    mean_stress = np.array([c.mean for c in cases])
+    iterations = [c.iterations for c in cases]
+    failures = [c.message for c in cases if not c.converged]
+    iter_s, iter_fft_s = sum(c.seconds for c in cases), sum(c.fft_seconds for c in cases)
     n_iter = max(sum(iterations), 1)
     info = {
-        "scheme": scheme, "discretization": discretization, "shape": list(phases.shape), "box": list(L),
-        "tol": tol,
-        "maxiter": int(maxiter), "threads": int(threads),
+        "scheme": run.scheme, "discretization": run.discretization, "shape": list(run.phases.shape),
+        "box": list(run.box), "tol": run.tol, "maxiter": run.maxiter, "threads": run.threads,
         "stopping_criterion": "||G[sigma]|| / ||G[C:E]|| <= tol (L2 norms of Mandel fields)",
         "internal_representation": "Mandel",
-        "volume_fractions": {str(p): f for p, f in ws.fractions.items()},
-        "macro_strains": strains, "mean_stress": mean_stress,
-        "plan_s": plan_s, "fft_s": fft_s, "fft_calls": fft_calls,
+        "volume_fractions": stats["volume_fractions"],
+        "macro_strains": run.strains, "mean_stress": mean_stress,
+        "plan_s": stats["plan_s"], "fft_s": stats["fft_s"], "fft_calls": stats["fft_calls"],
         "time_per_iteration_s": iter_s / n_iter, "fft_time_per_iteration_s": iter_fft_s / n_iter,
         "iteration_to_fft_ratio": iter_s / iter_fft_s if iter_fft_s > 0 else None,
-        "work_bytes": work_bytes,
+        "work_bytes": stats["work_bytes"],
         "peak_rss_bytes": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
         "failures": failures,
     }
-    if marks:
-        columns = [_stiffness_columns(strains, np.array([h[0] for h in hit])) for hit in hits]
-        info["checkpoints"] = [
-            {"tol": t, "C": 0.5 * (C + C.T), "iterations": [h[1] for h in hit], "wall_s": setup_s + sum(h[2] for h in hit),
-             "converged": all(h[3] for h in hit)} for t, C, hit in zip(marks, columns, hits)]
-    if ref is not None:
+    if checkpoints:
+        info["checkpoints"] = checkpoints
+    if run.reference is not None:
+        ref = run.reference
         info["reference_medium"] = {"lambda0": ref.lam, "mu0": ref.mu, "contraction_factor": ref.rate}
+    fields = None
+    if run.return_fields:
+        fields = {"strain": np.array([c.fields[0] for c in cases]), "stress": np.array([c.fields[1] for c in cases])}
     return HomogenizationResult.from_columns(
-        C_raw, method="fft", iterations=iterations, residuals=residuals, wall_s=time.perf_counter() - t_start,
-        converged=not failures, info=info,
-        fields={k: np.array(v) for k, v in fields.items()} if fields is not None else None,
-    )
+        _stiffness_columns(run.strains, mean_stress), method="fft", iterations=iterations,
+        residuals=[c.history for c in cases], wall_s=time.perf_counter() - t_start, converged=not failures,
+        info=info, fields=fields)
