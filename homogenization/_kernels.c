@@ -171,3 +171,308 @@ double ff_axpy(int64_t n, int64_t stride, const double *alpha, const double *x, 
     }
     return total;
 }
+
+/* ------------------------------------------------------------------------------------------------------------
+ * Displacement form of the rotated scheme (scheme "pcg"): trilinear hexahedra with one-point quadrature.
+ *
+ * Nodal displacements u (3 components) live at the voxel corners: node (i, j, k) is the lower corner of voxel
+ * (i, j, k). The strain of voxel v is e = E + B u (Mandel), from the one-point gradient of the shape functions,
+ * dN/dx_d = s_d / (4 h_d) with s_d = +1 for the voxel's 4 nodes on its upper side along d, -1 on the lower side.
+ * Arrays are blocks of whole planes along axis 0, periodic along axes 1 and 2 (wrapped here) and along axis 0
+ * through ghost planes filled by the caller: p has plane l + 1 = node plane l (ghosts 0 and n + 1), phase has
+ * plane l + 1 = voxel plane l (ghost 0). Voxel plane v uses node planes v and v + 1; node plane l gathers from
+ * voxel planes l - 1 and l.
+ * ------------------------------------------------------------------------------------------------------------ */
+
+/* Tensor stress (11 22 33 23 13 12) of voxel plane v into tau, stored with one leading wrap row and column:
+ * tau[c][(j + 1) * (n3 + 1) + k + 1] = voxel (j, k), row 0 = voxel row n2 - 1, column 0 = voxel column n3 - 1.
+ * Adds sum_x w.e tau (energy) and sum_x tau_c (mean[c]) to acc[0..6] if count != 0. s, d: 3 * n2 * (n3 + 1)
+ * scratch (plane average and difference of p along axis 0, with one trailing wrap column); ebuf: 6 * n3. */
+static void hex_voxel_plane(int64_t v, int64_t n2, int64_t n3, const double *p, int64_t pstride,
+                            const int32_t *phase, int nphase, const double *tables, const double *w,
+                            const double *E, const double *h, double *restrict s, double *restrict d,
+                            double *restrict tau, double *restrict ebuf, int count, double *acc)
+{
+    const int64_t plane = n2 * n3, row = n3 + 1, tplane = (n2 + 1) * (n3 + 1);
+    const double inv0 = 1.0 / h[0], q1 = 0.5 / h[1], q2 = 0.5 / h[2];
+    const double SQ = 0.70710678118654752440; /* 1/sqrt(2) */
+    for (int c = 0; c < 3; ++c) {
+        double *sc = s + c * n2 * row, *dc = d + c * n2 * row;
+        if (p == NULL) {
+            for (int64_t a = 0; a < n2 * row; ++a)
+                sc[a] = dc[a] = 0.0;
+            continue;
+        }
+        const double *P0 = p + c * pstride + (v + 1) * plane, *P1 = P0 + plane;
+        for (int64_t j = 0; j < n2; ++j) {
+            for (int64_t k = 0; k < n3; ++k) {
+                sc[j * row + k] = 0.5 * (P0[j * n3 + k] + P1[j * n3 + k]);
+                dc[j * row + k] = inv0 * (P1[j * n3 + k] - P0[j * n3 + k]);
+            }
+            sc[j * row + n3] = sc[j * row];
+            dc[j * row + n3] = dc[j * row];
+        }
+    }
+    const int32_t *id = phase + (v + 1) * plane;
+    int empty[64];
+    for (int ph = 0; ph < nphase && ph < 64; ++ph) {
+        empty[ph] = 1;
+        for (int a = 0; a < 36; ++a)
+            empty[ph] &= (tables[36 * ph + a] == 0.0);
+    }
+    double *tr[6];
+    for (int c = 0; c < 6; ++c)
+        tr[c] = tau + c * tplane;
+    int nonvoid[64], nnv = 0;
+    for (int ph = 0; ph < nphase && ph < 64; ++ph)
+        if (!empty[ph])
+            nonvoid[nnv++] = ph;
+    double energy = 0.0, mean[6] = {0, 0, 0, 0, 0, 0};
+    double *restrict ev[6]; /* Mandel strain of one voxel row */
+    for (int c = 0; c < 6; ++c)
+        ev[c] = ebuf + c * n3;
+    const double E0 = E ? E[0] : 0.0, E1 = E ? E[1] : 0.0, E2 = E ? E[2] : 0.0, E3 = E ? E[3] : 0.0,
+                 E4 = E ? E[4] : 0.0, E5 = E ? E[5] : 0.0;
+    for (int64_t j = 0; j < n2; ++j) {
+        const int64_t jp = (j + 1 == n2) ? 0 : j + 1;
+        const double *s0 = s + j * row, *s1 = s0 + n2 * row, *s2 = s1 + n2 * row;
+        const double *t0 = s + jp * row, *t1 = t0 + n2 * row, *t2 = t1 + n2 * row; /* s at row jp */
+        const double *d0 = d + j * row, *d1 = d0 + n2 * row, *d2 = d1 + n2 * row;
+        const double *b0 = d + jp * row, *b1 = b0 + n2 * row, *b2 = b1 + n2 * row; /* d at row jp */
+        const int32_t *idr = id + j * n3;
+        double *restrict o0 = tr[0] + (j + 1) * row + 1, *restrict o1 = tr[1] + (j + 1) * row + 1,
+                         *restrict o2 = tr[2] + (j + 1) * row + 1, *restrict o3 = tr[3] + (j + 1) * row + 1,
+                         *restrict o4 = tr[4] + (j + 1) * row + 1, *restrict o5 = tr[5] + (j + 1) * row + 1;
+        for (int64_t k = 0; k < n3; ++k) {
+            /* one-point gradients: along 0 from the plane differences d, along 1 and 2 from the plane means s */
+            const double a00 = 0.25 * (d0[k] + d0[k + 1] + b0[k] + b0[k + 1]);
+            const double a10 = 0.25 * (d1[k] + d1[k + 1] + b1[k] + b1[k + 1]);
+            const double a20 = 0.25 * (d2[k] + d2[k + 1] + b2[k] + b2[k + 1]);
+            const double a01 = q1 * (t0[k] + t0[k + 1] - s0[k] - s0[k + 1]);
+            const double a11 = q1 * (t1[k] + t1[k + 1] - s1[k] - s1[k + 1]);
+            const double a21 = q1 * (t2[k] + t2[k + 1] - s2[k] - s2[k + 1]);
+            const double a02 = q2 * (s0[k + 1] + t0[k + 1] - s0[k] - t0[k]);
+            const double a12 = q2 * (s1[k + 1] + t1[k + 1] - s1[k] - t1[k]);
+            const double a22 = q2 * (s2[k + 1] + t2[k + 1] - s2[k] - t2[k]);
+            ev[0][k] = a00 + E0;
+            ev[1][k] = a11 + E1;
+            ev[2][k] = a22 + E2;
+            ev[3][k] = SQ * (a12 + a21) + E3;
+            ev[4][k] = SQ * (a02 + a20) + E4;
+            ev[5][k] = SQ * (a01 + a10) + E5;
+        }
+        if (nnv == 0)
+            for (int64_t k = 0; k < n3; ++k)
+                o0[k] = o1[k] = o2[k] = o3[k] = o4[k] = o5[k] = 0.0;
+        /* one vectorizable sweep per non-void phase, its matrix held in registers; each voxel has one phase, so
+         * the energy and the stress sums add the masked contributions of every sweep */
+        double en = 0.0, m0 = 0.0, m1 = 0.0, m2 = 0.0, m3 = 0.0, m4 = 0.0, m5 = 0.0;
+        for (int qn = 0; qn < nnv; ++qn) {
+            const int ph = nonvoid[qn];
+            double T[36];
+            for (int a = 0; a < 36; ++a)
+                T[a] = tables[36 * ph + a];
+            if (qn == 0) /* the first sweep writes (never reads the previous plane's values), the others add */
+                for (int64_t k = 0; k < n3; ++k)
+                    o0[k] = o1[k] = o2[k] = o3[k] = o4[k] = o5[k] = 0.0;
+#pragma omp simd reduction(+ : en, m0, m1, m2, m3, m4, m5)
+            for (int64_t k = 0; k < n3; ++k) {
+                const double mask = (idr[k] == ph) ? 1.0 : 0.0;
+                const double e0 = ev[0][k], e1 = ev[1][k], e2 = ev[2][k], e3 = ev[3][k], e4 = ev[4][k], e5 = ev[5][k];
+                const double y0 = mask * (T[0] * e0 + T[1] * e1 + T[2] * e2 + T[3] * e3 + T[4] * e4 + T[5] * e5);
+                const double y1 = mask * (T[6] * e0 + T[7] * e1 + T[8] * e2 + T[9] * e3 + T[10] * e4 + T[11] * e5);
+                const double y2 = mask * (T[12] * e0 + T[13] * e1 + T[14] * e2 + T[15] * e3 + T[16] * e4 + T[17] * e5);
+                const double y3 = mask * (T[18] * e0 + T[19] * e1 + T[20] * e2 + T[21] * e3 + T[22] * e4 + T[23] * e5);
+                const double y4 = mask * (T[24] * e0 + T[25] * e1 + T[26] * e2 + T[27] * e3 + T[28] * e4 + T[29] * e5);
+                const double y5 = mask * (T[30] * e0 + T[31] * e1 + T[32] * e2 + T[33] * e3 + T[34] * e4 + T[35] * e5);
+                o0[k] += y0;
+                o1[k] += y1;
+                o2[k] += y2;
+                o3[k] += y3;
+                o4[k] += y4;
+                o5[k] += y5;
+                en += w[0] * e0 * y0 + w[1] * e1 * y1 + w[2] * e2 * y2 + w[3] * e3 * y3 + w[4] * e4 * y4 + w[5] * e5 * y5;
+                m0 += y0;
+                m1 += y1;
+                m2 += y2;
+                m3 += y3;
+                m4 += y4;
+                m5 += y5;
+            }
+        }
+        energy += en;
+        mean[0] += m0;
+        mean[1] += m1;
+        mean[2] += m2;
+        mean[3] += m3;
+        mean[4] += m4;
+        mean[5] += m5;
+    }
+    /* wrap row 0 and column 0 */
+    for (int c = 0; c < 6; ++c) {
+        double *T = tr[c];
+        for (int64_t k = 0; k < n3; ++k)
+            T[k + 1] = T[n2 * row + k + 1];
+        for (int64_t j = 0; j <= n2; ++j)
+            T[j * row] = T[j * row + n3];
+    }
+    if (count) {
+        acc[0] += energy;
+        for (int c = 0; c < 6; ++c)
+            acc[1 + c] += mean[c];
+    }
+}
+
+/* q = B^T sigma(E + B p) on node planes [a, b) (local; q unpadded, plane l at q + l * plane). p == NULL means
+ * p = 0, E == NULL means E = 0. tables: per phase the 6x6 map from Mandel strain to tensor stress (row-major),
+ * w: Mandel weights (1, 1, 1, sqrt2, sqrt2, sqrt2). sums[0] += sum over voxel planes [a, b) of e.sigma (Mandel;
+ * = p.Kp when E == NULL), sums[1..6] += sum of the tensor stress components. */
+void ff_hex_apply(int64_t n2, int64_t n3, int64_t a, int64_t b, const double *p, int64_t pstride,
+                  const int32_t *phase, int nphase, const double *tables, const double *w, const double *E,
+                  const double *h, double *q, int64_t qstride, double *sums)
+{
+    const int64_t plane = n2 * n3, row = n3 + 1, tplane = (n2 + 1) * (n3 + 1);
+    double *s = malloc(3 * n2 * row * sizeof(double));
+    double *d = malloc(3 * n2 * row * sizeof(double));
+    double *tauA = malloc(6 * tplane * sizeof(double)); /* voxel plane l - 1 */
+    double *tauB = malloc(6 * tplane * sizeof(double)); /* voxel plane l */
+    double *pqrs = malloc(8 * row * sizeof(double));    /* P, Q, R, S of two padded rows */
+    double *ebuf = malloc(6 * n3 * sizeof(double));     /* strain of one voxel row */
+    double acc[7] = {0, 0, 0, 0, 0, 0, 0};
+    const double f0 = 0.25 / h[0], f1 = 0.25 / h[1], f2 = 0.25 / h[2];
+    /* tau_cd as Voigt index: row c, column d */
+    static const int V[3][3] = {{0, 5, 4}, {5, 1, 3}, {4, 3, 2}};
+    hex_voxel_plane(a - 1, n2, n3, p, pstride, phase, nphase, tables, w, E, h, s, d, tauA, ebuf, 0, acc);
+    for (int64_t l = a; l < b; ++l) {
+        hex_voxel_plane(l, n2, n3, p, pstride, phase, nphase, tables, w, E, h, s, d, tauB, ebuf, 1, acc);
+        for (int c = 0; c < 3; ++c) {
+            /* f = f0 sum4 (A - B)_c0 + f1 sum_cols (U_c1[row j] - U_c1[row j+1]) + f2 sum_rows (U_c2[col k] -
+             * U_c2[col k+1]) with U = A + B, written as P[j][k] + Q[j][k+1] + R[j+1][k] + S[j+1][k+1] */
+            const double *A0 = tauA + V[c][0] * tplane, *B0 = tauB + V[c][0] * tplane;
+            const double *A1 = tauA + V[c][1] * tplane, *B1 = tauB + V[c][1] * tplane;
+            const double *A2 = tauA + V[c][2] * tplane, *B2 = tauB + V[c][2] * tplane;
+            double *out = q + c * qstride + l * plane;
+            for (int64_t rr = 0; rr <= n2; ++rr) {
+                double *restrict P = pqrs + (rr & 1) * 4 * row, *restrict Q = P + row, *restrict R = Q + row,
+                                 *restrict S = R + row;
+                const int64_t o = rr * row;
+#pragma omp simd
+                for (int64_t k = 0; k <= n3; ++k) {
+                    const double x = f0 * (A0[o + k] - B0[o + k]), u = f1 * (A1[o + k] + B1[o + k]),
+                                 z = f2 * (A2[o + k] + B2[o + k]);
+                    P[k] = x + u + z;
+                    Q[k] = x + u - z;
+                    R[k] = x - u + z;
+                    S[k] = x - u - z;
+                }
+                if (rr == 0)
+                    continue;
+                const int64_t j = rr - 1;
+                const double *Pj = pqrs + (j & 1) * 4 * row, *Qj = Pj + row; /* row j */
+                const double *Rj = P + 2 * row, *Sj = P + 3 * row;            /* row j + 1 */
+                double *restrict oj = out + j * n3;
+#pragma omp simd
+                for (int64_t k = 0; k < n3; ++k)
+                    oj[k] = Pj[k] + Qj[k + 1] + Rj[k] + Sj[k + 1];
+            }
+        }
+        double *t = tauA;
+        tauA = tauB;
+        tauB = t;
+    }
+    for (int c = 0; c < 7; ++c)
+        sums[c] += acc[c];
+    free(s);
+    free(d);
+    free(tauA);
+    free(tauB);
+    free(pqrs);
+    free(ebuf);
+}
+
+/* In place on the half spectrum of r (3 components, complex as (re, im) doubles, lines of h3 entries along the
+ * last axis, ni * n2 lines from the block's first plane): hat <- scale K_I(xi)^-1 hat with the reference
+ * operator K_I = B^T B (Mandel identity), K_I(xi) = (|k|^2 I + k k^T) / 2, so
+ * K_I^-1 r = (2 / |k|^2) (r - (k.r) k / (2 |k|^2)); zero where |k|^2 <= kmin (k = 0: the mean and the hourglass
+ * modes). The rotated wave vector k = (K0 C1 C2, C0 K1 C2, C0 C1 K2) is built from the per-axis tables
+ * K_d = (2 / h_d) sin(pi m_d / N_d), C_d = cos(pi m_d / N_d) of the block's indices. Returns
+ * sum w conj(r).z over the block, w = 1 on the single planes (last index 0, and h3 - 1 if nyquist), else 2:
+ * with scale = 1/N^3 this is sum_x r.z of the transformed-back z (Parseval). */
+double ff_hex_green(int64_t ni, int64_t n2, int64_t h3, double *hat, int64_t stride, const double *K0,
+                    const double *C0, const double *K1, const double *C1, const double *K2, const double *C2,
+                    double kmin, double scale, int nyquist)
+{
+    double total = 0.0, single = 0.0;
+    double *buf = malloc(5 * h3 * sizeof(double));
+    double *k0 = buf, *k1 = buf + h3, *k2 = buf + 2 * h3, *amp = buf + 3 * h3, *half = buf + 4 * h3;
+    for (int64_t i = 0; i < ni; ++i)
+        for (int64_t j = 0; j < n2; ++j) {
+            const double A = K0[i] * C1[j], Bv = C0[i] * K1[j], Cc = C0[i] * C1[j];
+            double *x = hat + 2 * ((i * n2 + j) * h3), *y = x + stride, *z = y + stride;
+#pragma omp simd
+            for (int64_t k = 0; k < h3; ++k) {
+                k0[k] = A * C2[k];
+                k1[k] = Bv * C2[k];
+                k2[k] = Cc * K2[k];
+                const double kk = k0[k] * k0[k] + k1[k] * k1[k] + k2[k] * k2[k];
+                const double safe = (kk > kmin) ? kk : 1.0;
+                amp[k] = (kk > kmin) ? 2.0 * scale / safe : 0.0;
+                half[k] = 0.5 / safe;
+            }
+            /* the single planes (last index 0, and h3 - 1 on an even axis) count once in Parseval's sum: their
+             * r.z (from the untransformed r) is subtracted once from the doubled total */
+            for (int e = 0; e < 1 + (nyquist && h3 > 1); ++e) {
+                const int64_t k = e ? h3 - 1 : 0;
+                for (int part = 0; part < 2; ++part) {
+                    const double r0 = x[2 * k + part], r1 = y[2 * k + part], r2 = z[2 * k + part];
+                    const double kr = half[k] * (k0[k] * r0 + k1[k] * r1 + k2[k] * r2);
+                    single += amp[k] * (r0 * (r0 - kr * k0[k]) + r1 * (r1 - kr * k1[k]) + r2 * (r2 - kr * k2[k]));
+                }
+            }
+            double line = 0.0;
+#pragma omp simd reduction(+ : line)
+            for (int64_t k = 0; k < h3; ++k) {
+                const double a = amp[k], c = half[k], q0 = k0[k], q1 = k1[k], q2 = k2[k];
+                const double xr = x[2 * k], xi = x[2 * k + 1], yr = y[2 * k], yi = y[2 * k + 1], zr = z[2 * k],
+                             zi = z[2 * k + 1];
+                const double kr = c * (q0 * xr + q1 * yr + q2 * zr), ki = c * (q0 * xi + q1 * yi + q2 * zi);
+                const double ar0 = a * (xr - kr * q0), ar1 = a * (yr - kr * q1), ar2 = a * (zr - kr * q2);
+                const double ai0 = a * (xi - ki * q0), ai1 = a * (yi - ki * q1), ai2 = a * (zi - ki * q2);
+                line += xr * ar0 + yr * ar1 + zr * ar2 + xi * ai0 + yi * ai1 + zi * ai2;
+                x[2 * k] = ar0;
+                x[2 * k + 1] = ai0;
+                y[2 * k] = ar1;
+                y[2 * k + 1] = ai1;
+                z[2 * k] = ar2;
+                z[2 * k + 1] = ai2;
+            }
+            total += line;
+        }
+    free(buf);
+    return 2.0 * total - single;
+}
+
+/* y_c <- alpha_c x_c + beta y_c for c < ncomp (x, y with their own component strides; beta = 0 does not read
+ * y); returns sum y.y if norm != 0, else 0. */
+double ff_axpby(int64_t n, int ncomp, const double *alpha, const double *x, int64_t xstride, double beta,
+                double *y, int64_t ystride, int norm)
+{
+    double total = 0.0;
+    for (int c = 0; c < ncomp; ++c) {
+        const double a = alpha[c];
+        const double *xc = x + c * xstride;
+        double *yc = y + c * ystride;
+        if (beta == 0.0) /* y may hold garbage (NaN): never read it */
+            for (int64_t i = 0; i < n; ++i)
+                yc[i] = a * xc[i];
+        else
+            for (int64_t i = 0; i < n; ++i)
+                yc[i] = a * xc[i] + beta * yc[i];
+        if (norm) {
+#pragma omp simd reduction(+ : total)
+            for (int64_t i = 0; i < n; ++i)
+                total += yc[i] * yc[i];
+        }
+    }
+    return total;
+}

@@ -32,6 +32,14 @@ double ff_constitutive(int64_t n, int64_t stride, double *p, const double *r, do
 double ff_green(int64_t n, int64_t stride, double *hat, int64_t nstride, const double *nvec, double c,
                 int residual, int64_t h, int nyquist);
 double ff_axpy(int64_t n, int64_t stride, const double *alpha, const double *x, double *y, int norm);
+void ff_hex_apply(int64_t n2, int64_t n3, int64_t a, int64_t b, const double *p, int64_t pstride,
+                  const int32_t *phase, int nphase, const double *tables, const double *w, const double *E,
+                  const double *h, double *q, int64_t qstride, double *sums);
+double ff_hex_green(int64_t ni, int64_t n2, int64_t h3, double *hat, int64_t stride, const double *K0,
+                    const double *C0, const double *K1, const double *C1, const double *K2, const double *C2,
+                    double kmin, double scale, int nyquist);
+double ff_axpby(int64_t n, int ncomp, const double *alpha, const double *x, int64_t xstride, double beta,
+                double *y, int64_t ystride, int norm);
 """
 
 

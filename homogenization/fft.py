@@ -78,7 +78,7 @@ import pyfftw
 
 from foambase.errors import InputError, NotConvergedError
 from foambase.threads import cpu_count
-from homogenization import _native
+from homogenization import _native, _nodal
 from homogenization.result import HomogenizationResult
 from homogenization.tensors import check_stiffness, closest_isotropic, mandel_to_voigt, voigt_to_mandel
 
@@ -94,9 +94,9 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
-SCHEMES = ("cg", "basic")
+SCHEMES = ("cg", "basic", "pcg")
 DISCRETIZATIONS = ("rotated", "spectral")
-DEFAULT_MAXITER = {"cg": 1000, "basic": 5000}
+DEFAULT_MAXITER = {"cg": 1000, "basic": 5000, "pcg": 1000}
 
 _SQRT2 = np.sqrt(2.0)
 _MANDEL = np.array([1.0, 1.0, 1.0, _SQRT2, _SQRT2, _SQRT2])  # Voigt (engineering) strain → Mandel: divide
@@ -722,8 +722,7 @@ def homogenize_fft(
     run = _check_inputs(phases, materials, scheme=scheme, discretization=discretization, box=box, tol=tol,
                         maxiter=maxiter, threads=threads, macro_strains=macro_strains, checkpoints=checkpoints,
                         return_fields=return_fields)
-    ws = _Workspace(run.phases, run.stiffness, run.discretization, run.threads, box=run.box,
-                    n_vectors={"cg": 2 + run.keep_iterate, "basic": 1}[run.scheme])
+    ws = _make_workspace(run)
     logger.info("FFT homogenization: %s/%s on %s, %d threads, %.1f MB of work arrays, plan %.2f s",
                 run.scheme, run.discretization, run.phases.shape, run.threads, ws.nbytes / 1e6, ws.plan_s)
     marks = _Checkpoints(run.marks)
@@ -766,18 +765,36 @@ class _Run:
     @property
     def keep_iterate(self) -> bool:
         """CG stores its iterate only when the fields are asked for."""
-        return self.return_fields and self.scheme == "cg"
+        return self.return_fields and self.scheme in ("cg", "pcg")
+
+
+def _make_workspace(run: _Run):
+    """The scheme's work arrays and FFT plans: strain fields (cg, basic) or nodal displacements (pcg)."""
+    if run.scheme != "pcg":
+        return _Workspace(run.phases, run.stiffness, run.discretization, run.threads, box=run.box,
+                          n_vectors={"cg": 2 + run.keep_iterate, "basic": 1}[run.scheme])
+    ids, counts = np.unique(run.phases, return_counts=True)
+    tables = np.zeros((int(ids.max()) + 1, 6, 6))
+    for p in ids:
+        tables[p] = run.stiffness[int(p)] / _MANDEL[:, None]  # Mandel strain → tensor stress
+    ws = _nodal.NodalWorkspace(run.phases, tables, run.phases.shape, run.box, run.threads, run.keep_iterate)
+    ws.counts = {int(p): int(c) for p, c in zip(ids, counts)}
+    ws.fractions = {p: c / ws.size for p, c in ws.counts.items()}
+    return ws
 
 
 def _check_inputs(phases, materials, *, scheme, discretization, box, tol, maxiter, threads, macro_strains,
                   checkpoints, return_fields) -> _Run:
-    """Every argument checked (a ValueError naming the bad value and what is valid) before any work."""
+    """Every argument checked (an InputError naming the bad value and what is valid) before any work."""
     phases = _check_phases(phases)
     stiff = _check_materials(materials, np.unique(phases))
     if scheme not in SCHEMES:
         raise InputError(f"scheme must be one of {SCHEMES}, got {scheme!r}")
     if discretization not in DISCRETIZATIONS:
         raise InputError(f"discretization must be one of {DISCRETIZATIONS}, got {discretization!r}")
+    if scheme == "pcg" and discretization != "rotated":
+        raise InputError(f"scheme='pcg' solves for the nodal displacements of the rotated discretization "
+                         f"(trilinear voxels); it cannot run discretization={discretization!r}: use scheme='cg'")
     if not (np.isfinite(tol) and 0.0 < tol < 1.0):
         raise InputError(f"tol must satisfy 0 < tol < 1, got tol = {tol}")
     maxiter = DEFAULT_MAXITER[scheme] if maxiter is None else maxiter
@@ -861,6 +878,9 @@ def _solve_case(ws: _Workspace, run: _Run, case: int, E_voigt: np.ndarray, marks
 
     if run.scheme == "cg":
         mean, history, ok, message = _solve_cg(ws, E, run.tol, run.maxiter, report, run.keep_iterate)
+    elif run.scheme == "pcg":
+        load = _nodal.load_norm(ws, run.stiffness, ws.counts, E)
+        mean, history, ok, message = _nodal.solve_pcg(ws, E, run.tol, run.maxiter, report, load)
     else:
         mean, history, ok, message = _solve_basic(ws, E, run.tol, run.maxiter, report, run.reference)
     seconds, fft_seconds = time.perf_counter() - t0, ws.fft_s - f0
@@ -873,6 +893,8 @@ def _solve_case(ws: _Workspace, run: _Run, case: int, E_voigt: np.ndarray, marks
 
 def _case_fields(ws: _Workspace, run: _Run, E: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Strain and stress fields (Voigt) of the case just solved."""
+    if run.scheme == "pcg":
+        return ws.strain_stress(E)
     strain = ws.vectors[0]  # basic: ε
     if run.scheme == "cg":  # E + the CG iterate ε̃
         strain = ws.vectors[2]
