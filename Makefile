@@ -9,7 +9,7 @@ SHELL := /bin/bash
 # Debian packages: the FEniCSx 0.5 stack, gmsh, FFTW, MPI, a threaded BLAS (the default reference BLAS
 # makes MUMPS ~5x slower), and the Mesa EGL/GL libraries that PyPI's vtk needs to render offscreen.
 DEB_PACKAGES := python3-dolfinx-real python3-dolfinx-mpc python3-gmsh python3-meshio python3-pyfftw \
-	python3-mpi4py python3-scipy python3-matplotlib python3-tqdm python3-pytest python3-skimage python3-venv \
+	python3-mpi4py python3-mpi4py-fft python3-scipy python3-matplotlib python3-tqdm python3-pytest python3-skimage python3-venv \
 	openmpi-bin libopenblas0-pthread libegl1 libegl-mesa0 libgl1 libgl1-mesa-dri libxrender1
 
 VENV := .venv

@@ -205,7 +205,7 @@ class NodalWorkspace:
             self._forward.execute()
         else:
             for c in range(3):
-                self.pfft.forward(self.r[c], self.hat[c])
+                self.pfft.forward(self.r[c], self.hat[c], normalize=False)
         self.fft_s += time.perf_counter() - t0
         self.fft_calls += 1
         N2loc, H = self.n2, self.shape[2] // 2 + 1

@@ -650,7 +650,7 @@ def homogenize_fft(
     phases: np.ndarray,
     materials: Sequence[np.ndarray] | Mapping[int, np.ndarray],
     *,
-    scheme: str = "cg",
+    scheme: str | None = None,
     discretization: str = "rotated",
     box: Sequence[float] | None = None,
     tol: float = 1e-6,
@@ -661,6 +661,8 @@ def homogenize_fft(
     checkpoints: Sequence[float] = (),
     raise_on_failure: bool = True,
     return_fields: bool = False,
+    comm=None,
+    slab: bool = False,
 ) -> HomogenizationResult:
     """Homogenized stiffness of a periodic voxel image by FFT (see the module docstring for the method).
 
@@ -673,8 +675,11 @@ def homogenize_fft(
         ``materials[p]`` is the 6×6 Voigt stiffness of phase ``p`` (a list indexed by phase id or a dict);
         symmetric positive definite, or exactly zero for a void phase. Ids absent from the image are ignored.
     scheme
-        ``"cg"`` (Galerkin + conjugate gradients, default) or ``"basic"`` (Moulinec–Suquet fixed point with
-        :func:`reference_medium`; refuses a zero-stiffness phase).
+        ``"pcg"`` (default with ``"rotated"``): conjugate gradients on the nodal displacements of the rotated
+        discretization, preconditioned by the Green operator (``homogenization._nodal``); same iterates and C as
+        ``"cg"`` at half the FFT work. ``"cg"`` (default with ``"spectral"``): Galerkin + conjugate gradients on
+        the strain. ``"basic"``: Moulinec–Suquet fixed point with :func:`reference_medium` (refuses a
+        zero-stiffness phase).
     discretization
         ``"rotated"`` (Willot, default) or ``"spectral"`` (Moulinec–Suquet), see :func:`wave_directions`.
     box
@@ -705,7 +710,18 @@ def homogenize_fft(
         If True (default) non-convergence raises :class:`FFTConvergenceError`; if False the result comes back
         with ``converged=False`` and the residual histories.
     return_fields
-        Also return ``fields = {"strain", "stress"}``, each ``(n_cases, 6, N1, N2, N3)`` Voigt.
+        Also return ``fields = {"strain", "stress"}``, each ``(n_cases, 6, N1, N2, N3)`` Voigt (distributed:
+        this rank's planes). With ``"pcg"`` the strain of a voxel whose 8 nodes all touch only void is whatever
+        the nodal solution gives there (the problem does not determine it; its stress is zero).
+    comm
+        mpi4py communicator: with more than one rank the image is distributed over the ranks in slabs of planes
+        along axis 0 (:func:`slab_planes`), the FFTs by mpi4py-fft (spectrum distributed along axis 1); scheme
+        ``"pcg"``, discretization ``"rotated"``. Every rank returns the same result (``info`` adds ``ranks``,
+        ``planes``, ``work_bytes_per_rank``, ``peak_rss_bytes_per_rank``). At most ``min(N1, N2)`` ranks; any
+        rank count up to that works (uneven slabs). Call it on every rank of ``comm``.
+    slab
+        Distributed mode only: ``phases`` is this rank's slab ``phases[slice(*slab_planes(N1, comm))]`` of the
+        global image, for images too large for one rank; default: every rank passes the same full image.
 
     Returns
     -------
@@ -719,12 +735,17 @@ def homogenize_fft(
 
     """
     t_start = time.perf_counter()
-    run = _check_inputs(phases, materials, scheme=scheme, discretization=discretization, box=box, tol=tol,
-                        maxiter=maxiter, threads=threads, macro_strains=macro_strains, checkpoints=checkpoints,
-                        return_fields=return_fields)
-    ws = _make_workspace(run)
-    logger.info("FFT homogenization: %s/%s on %s, %d threads, %.1f MB of work arrays, plan %.2f s",
-                run.scheme, run.discretization, run.phases.shape, run.threads, ws.nbytes / 1e6, ws.plan_s)
+    comm = comm if comm is not None and comm.Get_size() > 1 else None
+    settings = dict(scheme=scheme, discretization=discretization, box=box, tol=tol, maxiter=maxiter, threads=threads,
+                    macro_strains=macro_strains, checkpoints=checkpoints, return_fields=return_fields)
+    if comm is None:
+        run = _check_inputs(phases, materials, **settings)
+    else:
+        run = _collective(comm, lambda: _check_inputs_distributed(phases, materials, comm, slab, **settings))
+    ws = _collective(comm, lambda: _make_workspace(run))
+    logger.info("FFT homogenization: %s/%s on %s, %d threads, %.1f MB of work arrays%s, plan %.2f s",
+                run.scheme, run.discretization, run.shape, run.threads, ws.nbytes / 1e6,
+                "" if comm is None else f" per rank ({comm.Get_size()} ranks)", ws.plan_s)
     marks = _Checkpoints(run.marks)
     setup_s = time.perf_counter() - t_start
     cases = []
@@ -739,7 +760,39 @@ def homogenize_fft(
                  "volume_fractions": {str(p): f for p, f in ws.fractions.items()}}
     finally:
         ws.close()
-    return _assemble_result(run, cases, stats, marks.summary(run.strains, setup_s), t_start)
+    return _assemble_result(run, cases, stats, marks.summary(run.strains, setup_s), t_start, comm)
+
+
+def slab_planes(n1: int, comm) -> tuple[int, int]:
+    """Planes ``[start, stop)`` along axis 0 that this rank holds in distributed mode (``comm``, N1 = ``n1``).
+
+    The block distribution of mpi4py-fft: the first ``n1 % size`` ranks get one plane more. With
+    ``homogenize_fft(..., comm=comm, slab=True)`` each rank passes ``phases[start:stop]`` of the global image.
+    """
+    size, rank = comm.Get_size(), comm.Get_rank()
+    q, r = divmod(int(n1), size)
+    start = rank * q + min(rank, r)
+    return start, start + q + (1 if rank < r else 0)
+
+
+def _collective(comm, action: Callable):
+    """Run ``action()`` on every rank; if it raises a ValueError on any rank, raise the first one on all ranks.
+
+    Input errors are thus raised everywhere, before any collective work, instead of leaving the other ranks
+    waiting in a collective call.
+    """
+    if comm is None:
+        return action()
+    try:
+        out, error = action(), None
+    except ValueError as exc:
+        out, error = None, f"{exc}"
+    errors = comm.allgather(error)
+    failed = [(rank, e) for rank, e in enumerate(errors) if e is not None]
+    if failed:
+        rank, message = failed[0]
+        raise ValueError(message if comm.Get_size() == 1 else f"{message} (rank {rank})")
+    return out
 
 
 # --------------------------------------------------------------------------------------------------
@@ -761,6 +814,10 @@ class _Run:
     marks: list[float]  #: checkpoint tolerances, loosest first
     reference: ReferenceMedium | None  #: basic scheme only
     return_fields: bool
+    shape: tuple[int, int, int] = (0, 0, 0)  #: global image shape (``phases`` holds planes ``i0 …`` of it)
+    i0: int = 0  #: first plane of ``phases`` (distributed mode)
+    counts: dict | None = None  #: voxels per phase id over the whole image
+    comm: object = None  #: communicator of the distributed mode (None: serial)
 
     @property
     def keep_iterate(self) -> bool:
@@ -773,13 +830,12 @@ def _make_workspace(run: _Run):
     if run.scheme != "pcg":
         return _Workspace(run.phases, run.stiffness, run.discretization, run.threads, box=run.box,
                           n_vectors={"cg": 2 + run.keep_iterate, "basic": 1}[run.scheme])
-    ids, counts = np.unique(run.phases, return_counts=True)
-    tables = np.zeros((int(ids.max()) + 1, 6, 6))
-    for p in ids:
-        tables[p] = run.stiffness[int(p)] / _MANDEL[:, None]  # Mandel strain → tensor stress
-    ws = _nodal.NodalWorkspace(run.phases, tables, run.phases.shape, run.box, run.threads, run.keep_iterate)
-    ws.counts = {int(p): int(c) for p, c in zip(ids, counts)}
-    ws.fractions = {p: c / ws.size for p, c in ws.counts.items()}
+    tables = np.zeros((max(run.counts) + 1, 6, 6))
+    for p in run.counts:
+        tables[p] = run.stiffness[p] / _MANDEL[:, None]  # Mandel strain → tensor stress
+    ws = _nodal.NodalWorkspace(run.phases, tables, run.shape, run.box, run.threads, run.keep_iterate,
+                               comm=run.comm, i0=run.i0)
+    ws.fractions = {p: c / ws.size for p, c in run.counts.items()}
     return ws
 
 
@@ -788,6 +844,8 @@ def _check_inputs(phases, materials, *, scheme, discretization, box, tol, maxite
     """Every argument checked (an InputError naming the bad value and what is valid) before any work."""
     phases = _check_phases(phases)
     stiff = _check_materials(materials, np.unique(phases))
+    if scheme is None:
+        scheme = "pcg" if discretization == "rotated" else "cg"
     if scheme not in SCHEMES:
         raise InputError(f"scheme must be one of {SCHEMES}, got {scheme!r}")
     if discretization not in DISCRETIZATIONS:
@@ -814,9 +872,74 @@ def _check_inputs(phases, materials, *, scheme, discretization, box, tol, maxite
             raise InputError(f"scheme='basic' cannot handle the zero-stiffness (void) phase(s) {void}: the "
                              "Moulinec–Suquet fixed point does not converge at infinite contrast; use scheme='cg'")
         ref = reference_medium(list(mandel.values()))
+    ids, counts = np.unique(phases, return_counts=True)
     return _Run(phases=phases, stiffness=mandel, scheme=scheme, discretization=discretization, box=L, tol=tol,
                 maxiter=int(maxiter), threads=int(threads), strains=strains, marks=marks, reference=ref,
-                return_fields=bool(return_fields))
+                return_fields=bool(return_fields), shape=tuple(phases.shape),
+                counts={int(p): int(c) for p, c in zip(ids, counts)})
+
+
+def _check_inputs_distributed(phases, materials, comm, slab, **settings) -> _Run:
+    """:func:`_check_inputs` for one image distributed over ``comm`` (planes along axis 0), scheme ``pcg`` only.
+
+    ``slab=False``: every rank passes the same full image and keeps its planes; ``slab=True``: every rank passes
+    its planes ``slab_planes(N1, comm)`` of the global image. The phase ids and their counts are global.
+    """
+    import dataclasses
+
+    from mpi4py import MPI
+
+    size = comm.Get_size()
+    scheme, discretization = settings["scheme"], settings["discretization"]
+    if (scheme or "pcg") != "pcg" or discretization != "rotated":
+        raise ValueError(f"distributed mode (comm with {size} ranks) runs scheme='pcg', discretization='rotated'; "
+                         f"got scheme={scheme!r}, discretization={discretization!r}")
+    settings = dict(settings, scheme="pcg")
+    phases = _check_phases(phases)
+    shapes = comm.allgather(tuple(int(n) for n in phases.shape))
+    if slab:
+        if any(s[1:] != shapes[0][1:] for s in shapes):
+            raise ValueError(f"slab=True: the ranks' slabs must share N2, N3; got shapes {shapes}")
+        shape = (sum(s[0] for s in shapes),) + tuple(shapes[0][1:])
+    else:
+        if any(s != shapes[0] for s in shapes):
+            raise ValueError(f"every rank must pass the same full image (or use slab=True); got shapes {shapes}")
+        shape = tuple(shapes[0])
+    if size > shape[0] or size > shape[1]:
+        raise ValueError(f"distributed mode needs at most min(N1, N2) = {min(shape[:2])} ranks for an image of "
+                         f"shape {shape} (one plane per rank in physical and in Fourier space); got {size} ranks")
+    i0, i1 = slab_planes(shape[0], comm)
+    if slab:
+        expected = [slab_planes(shape[0], _RankOf(comm, r))[1] - slab_planes(shape[0], _RankOf(comm, r))[0]
+                    for r in range(size)]
+        if [s[0] for s in shapes] != expected:
+            raise ValueError(f"slab=True: rank r must pass planes slab_planes(N1, comm) of the global image, i.e. "
+                             f"{expected} planes on ranks 0..{size - 1}; got {[s[0] for s in shapes]}")
+        local = phases
+    else:
+        local = phases[i0:i1]
+    ids, counts = np.unique(local, return_counts=True)
+    all_ids = sorted({int(p) for part in comm.allgather(ids.tolist()) for p in part})
+    run = _check_inputs(np.array(all_ids, dtype=np.intp).reshape(-1, 1, 1), materials, **settings)
+    totals = np.zeros(len(all_ids), dtype=np.int64)
+    for p, c in zip(ids, counts):
+        totals[all_ids.index(int(p))] = c
+    comm.Allreduce(MPI.IN_PLACE, totals, op=MPI.SUM)
+    return dataclasses.replace(run, phases=np.ascontiguousarray(local), shape=shape, i0=i0,
+                               counts={p: int(c) for p, c in zip(all_ids, totals)}, comm=comm)
+
+
+class _RankOf:
+    """A stand-in communicator reporting another rank (to compute every rank's slab)."""
+
+    def __init__(self, comm, rank, size=None):
+        self.size, self.rank = comm.Get_size() if size is None else size, rank
+
+    def Get_size(self):  # noqa: N802 (mpi4py's name)
+        return self.size
+
+    def Get_rank(self):  # noqa: N802
+        return self.rank
 
 
 class _Checkpoints:
@@ -879,7 +1002,7 @@ def _solve_case(ws: _Workspace, run: _Run, case: int, E_voigt: np.ndarray, marks
     if run.scheme == "cg":
         mean, history, ok, message = _solve_cg(ws, E, run.tol, run.maxiter, report, run.keep_iterate)
     elif run.scheme == "pcg":
-        load = _nodal.load_norm(ws, run.stiffness, ws.counts, E)
+        load = _nodal.load_norm(ws, run.stiffness, run.counts, E)
         mean, history, ok, message = _nodal.solve_pcg(ws, E, run.tol, run.maxiter, report, load)
     else:
         mean, history, ok, message = _solve_basic(ws, E, run.tol, run.maxiter, report, run.reference)
@@ -904,7 +1027,7 @@ def _case_fields(ws: _Workspace, run: _Run, E: np.ndarray) -> tuple[np.ndarray, 
 
 
 def _assemble_result(run: _Run, cases: list[_Case], stats: dict, checkpoints: list[dict],
-                     t_start: float) -> HomogenizationResult:
+                     t_start: float, comm=None) -> HomogenizationResult:
     """C from the load cases' mean stresses, with the settings, timings and checkpoints in ``info``."""
     mean_stress = np.array([c.mean for c in cases])
     iterations = [c.iterations for c in cases]
@@ -912,7 +1035,7 @@ def _assemble_result(run: _Run, cases: list[_Case], stats: dict, checkpoints: li
     iter_s, iter_fft_s = sum(c.seconds for c in cases), sum(c.fft_seconds for c in cases)
     n_iter = max(sum(iterations), 1)
     info = {
-        "scheme": run.scheme, "discretization": run.discretization, "shape": list(run.phases.shape),
+        "scheme": run.scheme, "discretization": run.discretization, "shape": list(run.shape),
         "box": list(run.box), "tol": run.tol, "maxiter": run.maxiter, "threads": run.threads,
         "stopping_criterion": "||G[sigma]|| / ||G[C:E]|| <= tol (L2 norms of Mandel fields)",
         "internal_representation": "Mandel",
@@ -927,6 +1050,11 @@ def _assemble_result(run: _Run, cases: list[_Case], stats: dict, checkpoints: li
     }
     if checkpoints:
         info["checkpoints"] = checkpoints
+    if comm is not None:  # this rank's figures above; every rank's here
+        info["ranks"] = comm.Get_size()
+        info["planes"] = [run.i0, run.i0 + run.phases.shape[0]]
+        info["work_bytes_per_rank"] = comm.allgather(info["work_bytes"])
+        info["peak_rss_bytes_per_rank"] = comm.allgather(info["peak_rss_bytes"])
     if run.reference is not None:
         ref = run.reference
         info["reference_medium"] = {"lambda0": ref.lam, "mu0": ref.mu, "contraction_factor": ref.rate}
