@@ -9,6 +9,13 @@ constants and fits are printed. It is written to a temporary file beside ``--out
 half-written; ``--stl`` also writes the foam's surface. Defaults: ``--tol 1e-4`` (tighter tolerances move the
 constants by less than the resolution error), ``--threads 1`` (considerate on a shared machine; more threads than
 CPUs is a warning). Every argument and output location is checked before any work, naming the argument.
+``--scheme`` defaults to ``pcg`` with the rotated discretization and ``cg`` with the spectral one.
+
+Under ``mpirun -n K`` (K > 1) ``homogenize`` distributes the one RVE over the K ranks
+(``homogenize_fft(..., comm=MPI.COMM_WORLD)``, slabs of planes along x, ``pcg`` with the rotated discretization
+only): rank 0 checks the arguments and outputs, voxelizes the foam (its memory peak holds the whole ``N³`` image,
+one byte per voxel) and sends each rank its planes; an ``--image`` is memory-mapped and every rank reads only its
+own planes. Rank 0 prints and writes the JSON (and the STL). ``--threads`` is per rank.
 
 ``fenicsfoam table`` (:data:`TABLE`) homogenizes every (density, γ, seed) foam of a sweep as the shipped table was
 made (:func:`homogenization.tables.run_sweep`: each finished sample is cached, so an interrupted sweep resumes; under
@@ -23,6 +30,8 @@ Examples
 ``homogenize --density 0.18 --gamma 0.1 --cells 20 --resolution 64 --seed 1 --out result.json``
 
 ``homogenize --image phases.npy --E-solid 1 --nu-solid 0.3 --out result.json``
+
+``mpirun -n 2 fenicsfoam homogenize --density 0.18 --gamma 0.1 --resolution 384 --out big.json``
 
 ``mpirun -n 2 fenicsfoam table --densities 0.15 0.3 --gammas 1 0.1 --seeds 0 1 2 --out out/foam-table``
 
@@ -41,6 +50,8 @@ from foambase.errors import InputError
 
 if TYPE_CHECKING:
     import numpy as np
+
+    from meshes.foam import VoronoiFoam
 
 __all__ = ["HOMOGENIZE", "HOMOGENIZE_THREADS", "HOMOGENIZE_TOL", "TABLE", "build_parser", "format_constants", "main"]
 
@@ -74,13 +85,15 @@ def _homogenize_arguments(p: argparse.ArgumentParser) -> None:
     mat.add_argument("--E-solid", dest="E_solid", type=float, default=1.0, help="Young's modulus of the solid")
     mat.add_argument("--nu-solid", dest="nu_solid", type=float, default=0.3, help="Poisson's ratio of the solid")
     sol = p.add_argument_group("solver")
-    sol.add_argument("--scheme", choices=SCHEMES, default="cg")
+    sol.add_argument("--scheme", choices=SCHEMES, default=None,
+                     help="default: pcg with the rotated discretization, cg with the spectral one; under mpirun "
+                          "with more than one rank only pcg (rotated)")
     sol.add_argument("--discretization", choices=DISCRETIZATIONS, default="rotated")
     sol.add_argument("--tol", type=float, default=HOMOGENIZE_TOL,
                      help="relative equilibrium residual ||G[σ]||/||G[C:E]||")
     sol.add_argument("--maxiter", type=int, default=None, help="iterations per load case (default: solver's)")
     sol.add_argument("--threads", type=int, default=HOMOGENIZE_THREADS,
-                     help="FFTW/kernel threads (more than the CPUs available: a warning)")
+                     help="FFTW/kernel threads (per rank under mpirun; more than the CPUs available: a warning)")
     p.add_argument("--out", type=nonempty_path, default=None, help="JSON result file (written atomically)")
 
 
@@ -93,14 +106,24 @@ def _warn_threads(threads: int | None, per: int = 1) -> None:
                        "(slower, not faster)", threads, f" × {per} ranks" if per > 1 else "", cpu_count())
 
 
-def _read_image(path: Path) -> np.ndarray:
-    """The 0/1 phase image of ``--image``, checked; :class:`InputError` naming the argument."""
+def _world():
+    """``MPI.COMM_WORLD`` if this process runs under mpirun with more than one rank, else None."""
+    from mpi4py import MPI
+
+    return MPI.COMM_WORLD if MPI.COMM_WORLD.Get_size() > 1 else None
+
+
+def _read_image(path: Path, mmap: bool = False) -> np.ndarray:
+    """The 0/1 phase image of ``--image``, checked; :class:`InputError` naming the argument.
+
+    With ``mmap`` the image is checked through a read-only memory map and returned as that map (not loaded).
+    """
     import numpy as np
 
     if not path.is_file():
         raise InputError(f"--image {path}: no such file")
     try:
-        image = np.load(path, allow_pickle=False)
+        image = np.load(path, allow_pickle=False, mmap_mode="r" if mmap else None)
     except (OSError, ValueError, EOFError) as exc:
         raise InputError(f"--image {path}: cannot read a .npy array ({exc})") from exc
     if not isinstance(image, np.ndarray):  # an .npz archive
@@ -113,14 +136,19 @@ def _read_image(path: Path) -> np.ndarray:
                          f"got dtype {image.dtype} with values {np.unique(image)[:5].tolist()}")
     if not image.any():
         raise InputError(f"--image {path}: every voxel is void (0): there is no solid to homogenize")
-    return image.astype(np.int8)
+    return image if mmap else image.astype(np.int8)
 
 
 def _homogenize_check(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
-    """Every argument and output before any work (exit status 2, naming the argument); reads ``--image``."""
+    """Every argument and output before any work (exit status 2, naming the argument); reads ``--image``.
+
+    Under mpirun with more than one rank the files (``--image``, ``--out``, ``--stl``) are checked on rank 0 and
+    every rank stops with its verdict; the image is then read by slabs in :func:`_homogenize`.
+    """
     import math
 
     from foambase.files import check_output_file
+    from foambase.mpi import on_rank0
     from homogenization.tensors import isotropic_voigt
 
     def need(ok: bool, message: str):
@@ -149,13 +177,27 @@ def _homogenize_check(parser: argparse.ArgumentParser, args: argparse.Namespace)
     need(math.isfinite(args.tol) and 0.0 < args.tol < 1.0, f"--tol must be in (0, 1), got {args.tol}")
     need(args.maxiter is None or args.maxiter >= 1, f"--maxiter must be >= 1, got {args.maxiter}")
     need(args.threads >= 1, f"--threads must be >= 1, got {args.threads}")
-    _warn_threads(args.threads)
-    if args.out is not None:
-        check_output_file(args.out, "--out")
-    if args.stl is not None:
-        check_output_file(args.stl, "--stl")
-        need(args.out is None or args.stl.resolve() != args.out.resolve(), "--stl and --out name the same file")
-    args.phases = None if args.image is None else _read_image(args.image)
+    args.comm = comm = _world()
+    if comm is not None:
+        need(args.scheme in (None, "pcg") and args.discretization == "rotated",
+             f"under mpirun with {comm.size} ranks homogenize distributes one RVE, which runs --scheme pcg with "
+             f"--discretization rotated only; got --scheme {args.scheme} --discretization {args.discretization}")
+    if comm is None or comm.rank == 0:
+        _warn_threads(args.threads, 1 if comm is None else comm.size)
+
+    def files():
+        if args.out is not None:
+            check_output_file(args.out, "--out")
+        if args.stl is not None:
+            check_output_file(args.stl, "--stl")
+            need(args.out is None or args.stl.resolve() != args.out.resolve(), "--stl and --out name the same file")
+        return None if args.image is None else _read_image(args.image, mmap=comm is not None)
+    if comm is None:
+        args.phases = files()
+    else:
+        image = on_rank0(comm, files, "checking the input and output files")
+        args.phases = None
+        args.image_shape = comm.bcast(None if image is None else image.shape)
 
 
 def _build_foam(args: argparse.Namespace):
@@ -173,6 +215,38 @@ def _build_foam(args: argparse.Namespace):
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise InputError(f"{given}: the periodic Voronoi diagram of these seeds cannot be computed ({first}); "
                          f"flat cells need about --cells >= 1/gamma, or a larger --gamma") from exc
+
+
+def _slab(args: argparse.Namespace, comm) -> tuple[np.ndarray, VoronoiFoam | None]:
+    """The planes of the phase image (int8) that this rank holds and, on rank 0 of a foam run, the foam.
+
+    The foam is voxelized on rank 0 and its planes are scattered; an ``--image`` is memory-mapped by every rank,
+    which reads its own planes only.
+    """
+    import numpy as np
+
+    from foambase.mpi import on_rank0
+    from homogenization.fft import slab_planes
+
+    if args.image is not None:
+        start, stop = slab_planes(args.image_shape[0], comm)
+        mapped = np.load(args.image, mmap_mode="r", allow_pickle=False)
+        return np.asarray(mapped[start:stop]).astype(np.int8), None
+
+    def voxelize():
+        foam = _build_foam(args)
+        image = foam.voxelize(args.resolution).astype(np.int8)
+        if not image.any():
+            raise InputError(f"--resolution {args.resolution}: no voxel centre lies in the struts (radius "
+                             f"{foam.radius:.3g}); use a finer --resolution")
+        return foam, image
+    foam, image = on_rank0(comm, voxelize, "voxelizing the foam") or (None, None)
+    shape = comm.bcast(None if image is None else image.shape)
+    start, stop = slab_planes(shape[0], comm)
+    counts = [int(np.diff(slab_planes(shape[0], comm, rank))[0]) * shape[1] * shape[2] for rank in range(comm.size)]
+    local = np.empty((stop - start, *shape[1:]), dtype=np.int8)
+    comm.Scatterv((image, counts) if comm.rank == 0 else None, local, root=0)
+    return local, foam
 
 
 def _versions() -> dict[str, str]:
@@ -213,31 +287,39 @@ def _homogenize(args: argparse.Namespace) -> int:
     from homogenization.fft import homogenize_fft
     from homogenization.tensors import InadmissibleMaterialError, isotropic_voigt
 
+    comm = getattr(args, "comm", None)
+    root = comm is None or comm.rank == 0
     phases, foam = args.phases, None
-    if phases is None:
+    if comm is not None:
+        phases, foam = _slab(args, comm)
+    elif phases is None:
         foam = _build_foam(args)
         phases = foam.voxelize(args.resolution).astype(np.int8)
         if not phases.any():
             raise InputError(f"--resolution {args.resolution}: no voxel centre lies in the struts (radius "
                              f"{foam.radius:.3g}); use a finer --resolution")
     materials = [np.zeros((6, 6)), isotropic_voigt(args.E_solid, args.nu_solid)]
-    with tqdm(total=6, unit="case", desc="homogenize", disable=None) as bar:
+    with tqdm(total=6, unit="case", desc="homogenize", disable=None if root else True) as bar:
         def progress(case, iteration, residual):
             if case > bar.n:
                 bar.update(case - bar.n)
             bar.set_postfix(iteration=iteration, residual=f"{residual:.2e}", refresh=False)
         result = homogenize_fft(phases, materials, scheme=args.scheme, discretization=args.discretization,
-                                tol=args.tol, maxiter=args.maxiter, threads=args.threads, callback=progress)
+                                tol=args.tol, maxiter=args.maxiter, threads=args.threads, callback=progress,
+                                comm=comm, slab=comm is not None)
         bar.update(6 - bar.n)
     try:
         summary = result.to_dict()
     except (InadmissibleMaterialError, np.linalg.LinAlgError) as exc:  # e.g. a solid that does not percolate
         raise ComputationError(f"the homogenized stiffness is not positive definite ({exc}); "
                                f"C = {np.array2string(result.C, precision=4)}") from exc
+    if not root:
+        return 0
     unused = ("image",) if args.image is None else ("density", "gamma", "cells", "seed", "resolution", "stl")
     inputs = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()
               if k in _HOMOGENIZE_INPUTS and k not in unused}
-    summary.update(inputs=inputs, solid_fraction=float(phases.mean()), software=_versions())
+    solid = float(sum(f for p, f in result.info["volume_fractions"].items() if p != "0"))  # all ranks' voxels
+    summary.update(inputs=inputs, solid_fraction=solid, software=_versions())
     print(f"C (Voigt) =\n{np.array2string(result.C, precision=5, suppress_small=True)}")
     print(format_constants(summary))
     print(f"iterations {result.iterations}, wall {result.wall_s:.2f} s")

@@ -692,7 +692,8 @@ def homogenize_fft(
     maxiter
         Iterations per load case; default 1000 for ``cg``, 5000 for ``basic``.
     threads
-        FFTW and block-kernel threads; default: the CPUs this process may run on.
+        FFTW and block-kernel threads; default: the CPUs this process may run on (distributed: divided by the
+        number of ranks on the node).
     macro_strains
         ``(n_cases, 6)`` Voigt macroscopic strains (engineering shear); default the six unit strains. Column *J*
         of ``C`` is ``⟨σ⟩/E_J`` of the case whose strain is a multiple of unit strain *J*; columns of ``C`` with
@@ -763,13 +764,14 @@ def homogenize_fft(
     return _assemble_result(run, cases, stats, marks.summary(run.strains, setup_s), t_start, comm)
 
 
-def slab_planes(n1: int, comm) -> tuple[int, int]:
-    """Planes ``[start, stop)`` along axis 0 that this rank holds in distributed mode (``comm``, N1 = ``n1``).
+def slab_planes(n1: int, comm, rank: int | None = None) -> tuple[int, int]:
+    """Planes ``[start, stop)`` along axis 0 that ``rank`` (default: this rank) of ``comm`` holds, for N1 = ``n1``.
 
     The block distribution of mpi4py-fft: the first ``n1 % size`` ranks get one plane more. With
     ``homogenize_fft(..., comm=comm, slab=True)`` each rank passes ``phases[start:stop]`` of the global image.
     """
-    size, rank = comm.Get_size(), comm.Get_rank()
+    size = comm.Get_size()
+    rank = comm.Get_rank() if rank is None else int(rank)
     q, r = divmod(int(n1), size)
     start = rank * q + min(rank, r)
     return start, start + q + (1 if rank < r else 0)
@@ -787,11 +789,9 @@ def _collective(comm, action: Callable):
         out, error = action(), None
     except ValueError as exc:
         out, error = None, f"{exc}"
-    errors = comm.allgather(error)
-    failed = [(rank, e) for rank, e in enumerate(errors) if e is not None]
+    failed = [e for e in comm.allgather(error) if e is not None]
     if failed:
-        rank, message = failed[0]
-        raise ValueError(message if comm.Get_size() == 1 else f"{message} (rank {rank})")
+        raise ValueError(failed[0])
     return out
 
 
@@ -891,11 +891,27 @@ def _check_inputs_distributed(phases, materials, comm, slab, **settings) -> _Run
 
     size = comm.Get_size()
     scheme, discretization = settings["scheme"], settings["discretization"]
-    if (scheme or "pcg") != "pcg" or discretization != "rotated":
-        raise ValueError(f"distributed mode (comm with {size} ranks) runs scheme='pcg', discretization='rotated'; "
-                         f"got scheme={scheme!r}, discretization={discretization!r}")
+    # 1. checks of this rank's own arguments, gathered before any other collective call (a rank that raised here
+    #    alone would leave the others waiting in the next one)
+    error = None
+    try:
+        if (scheme or "pcg") != "pcg" or discretization != "rotated":
+            raise ValueError(f"distributed mode (comm with {size} ranks) runs scheme='pcg', "
+                             f"discretization='rotated'; got scheme={scheme!r}, discretization={discretization!r}")
+        phases = np.asarray(phases)
+        if not (slab and phases.ndim == 3 and phases.shape[0] == 0):  # an empty slab: too many ranks (below)
+            phases = _check_phases(phases)
+    except ValueError as exc:
+        error = str(exc)
+    failed = [(rank, e) for rank, e in enumerate(comm.allgather(error)) if e is not None]
+    if failed:
+        raise ValueError(f"{failed[0][1]} (rank {failed[0][0]})")
+    # 2. global checks: every rank reaches the same verdict
     settings = dict(settings, scheme="pcg")
-    phases = _check_phases(phases)
+    if settings["threads"] is None:  # the ranks on one node share its CPUs
+        node = comm.Split_type(MPI.COMM_TYPE_SHARED)
+        settings["threads"] = max(1, cpu_count() // node.Get_size())
+        node.Free()
     shapes = comm.allgather(tuple(int(n) for n in phases.shape))
     if slab:
         if any(s[1:] != shapes[0][1:] for s in shapes):
@@ -910,8 +926,7 @@ def _check_inputs_distributed(phases, materials, comm, slab, **settings) -> _Run
                          f"shape {shape} (one plane per rank in physical and in Fourier space); got {size} ranks")
     i0, i1 = slab_planes(shape[0], comm)
     if slab:
-        expected = [slab_planes(shape[0], _RankOf(comm, r))[1] - slab_planes(shape[0], _RankOf(comm, r))[0]
-                    for r in range(size)]
+        expected = [int(np.diff(slab_planes(shape[0], comm, r))[0]) for r in range(size)]
         if [s[0] for s in shapes] != expected:
             raise ValueError(f"slab=True: rank r must pass planes slab_planes(N1, comm) of the global image, i.e. "
                              f"{expected} planes on ranks 0..{size - 1}; got {[s[0] for s in shapes]}")
@@ -927,19 +942,6 @@ def _check_inputs_distributed(phases, materials, comm, slab, **settings) -> _Run
     comm.Allreduce(MPI.IN_PLACE, totals, op=MPI.SUM)
     return dataclasses.replace(run, phases=np.ascontiguousarray(local), shape=shape, i0=i0,
                                counts={p: int(c) for p, c in zip(all_ids, totals)}, comm=comm)
-
-
-class _RankOf:
-    """A stand-in communicator reporting another rank (to compute every rank's slab)."""
-
-    def __init__(self, comm, rank, size=None):
-        self.size, self.rank = comm.Get_size() if size is None else size, rank
-
-    def Get_size(self):  # noqa: N802 (mpi4py's name)
-        return self.size
-
-    def Get_rank(self):  # noqa: N802
-        return self.rank
 
 
 class _Checkpoints:

@@ -525,6 +525,8 @@ def test_distributed_bad_input_fails_on_every_rank():
     size = comm.Get_size()
     with pytest.raises(ValueError, match=r"at most min\(N1, N2\) = 1 ranks"):
         homogenize_fft(np.zeros((1, 8, 8), dtype=int), [C_SOFT], comm=comm)
+    with pytest.raises(ValueError, match=rf"at most min\(N1, N2\) = {size - 1} ranks"):  # the last slab is empty
+        homogenize_fft(np.zeros((int(comm.Get_rank() < size - 1), 8, 8), dtype=int), [C_SOFT], comm=comm, slab=True)
     with pytest.raises(ValueError, match="slab_planes"):  # the last rank passes one plane too many
         homogenize_fft(np.zeros((4 + (comm.Get_rank() == size - 1), 8, 8), dtype=int), [C_SOFT], comm=comm,
                        slab=True)
@@ -539,11 +541,17 @@ def test_distributed_bad_input_fails_on_every_rank():
 
 
 def test_slab_planes_is_the_block_distribution():
-    from homogenization.fft import _RankOf, slab_planes
+    from homogenization.fft import slab_planes
 
-    comm = world()
+    class Comm:  # a communicator of `size` ranks
+        def __init__(self, size):
+            self.size = size
+
+        def Get_size(self):  # noqa: N802
+            return self.size
+
     for n1, size in [(16, 2), (15, 2), (10, 3), (7, 7)]:
-        parts = [slab_planes(n1, _RankOf(comm, rank, size)) for rank in range(size)]
+        parts = [slab_planes(n1, Comm(size), rank) for rank in range(size)]
         assert parts[0][0] == 0 and parts[-1][1] == n1
         assert all(p[1] == q[0] for p, q in zip(parts, parts[1:]))
         assert max(b - a for a, b in parts) - min(b - a for a, b in parts) <= 1
