@@ -1,49 +1,72 @@
 """Benchmark of the FFT homogenization solver (homogenization.fft).
 
-1. Foams (meshes.foam.VoronoiFoam, density 0.18, gamma 0.1 and 1, 20 cells) at N = 32, 64, 128 with cg/rotated:
-   iterations per load case, wall time, time per iteration, the ratio of the time per iteration to the time of
-   the two batched FFTs that iteration performs (goal <= 1.5), the solver's work arrays and the peak RSS.
+1. Schemes on the study foams (meshes.foam.VoronoiFoam, 20 cells, density 0.18, gamma 1 and 0.1, ``--seed``,
+   zero-stiffness void) at ``--sizes`` (default 64 128), tol ``--tol`` (default 1e-4): ``cg`` (strain-based
+   Galerkin CG) and ``pcg`` (nodal displacements, Green preconditioner), both of the rotated discretization.
+   Iterations per load case, wall time, time per iteration, the FFT time per iteration and the ratio of the two,
+   the solver's work arrays, the peak RSS and the largest relative difference of C from the ``cg`` row.
    With ``--image a.npy [b.npy ...]`` (0 = void, 1 = solid) those images are run instead of the foams.
-2. ``basic`` vs ``cg`` (both ``spectral`` and ``rotated``) on a finite-contrast image: a stiff spherical inclusion
-   (contrast ``--contrast``, default 100) at ``--contrast-n`` voxels per side.
+2. The distributed solve (``homogenize_fft(comm=...)``, ``pcg``) of one foam (``--mpi-size``, default 128,
+   gamma 1) under ``mpirun -n K`` for K in ``--ranks`` (default 1 2): wall time, iterations, time per
+   iteration, work arrays and peak RSS of every rank, C against the serial ``pcg`` row. Skipped with
+   ``--ranks`` empty.
+3. ``basic`` vs ``cg`` (``spectral`` and ``rotated``) and ``pcg`` on a finite-contrast image: a stiff spherical
+   inclusion (contrast ``--contrast``, default 100) at ``--contrast-n`` voxels per side.
 
-Each case runs in a fresh process so that its peak RSS (``getrusage``) is its own. Prints a table and writes
-``DIR/bench_fft.csv``. Usage: ``python bench/bench_fft.py --out out/bench [--sizes 32 64] [--threads 2]``.
+Each serial case runs in a fresh process so that its peak RSS (``getrusage``) is its own; every run uses
+``--threads`` threads (default 1). Prints a table and writes ``DIR/bench_fft.csv``.
+Usage: ``python bench/bench_fft.py --out out/bench [--sizes 64 128] [--ranks 1 2] [--threads 1]``.
 """
+
+import os
 
 from foambase.threads import single_threaded_blas_by_default
 
 single_threaded_blas_by_default()  # before numpy loads OpenBLAS: its threads spin against FFTW's
 
-import argparse
-import csv
-import multiprocessing
-from concurrent.futures import ProcessPoolExecutor
-from pathlib import Path
+import argparse  # noqa: E402
+import csv  # noqa: E402
+import json  # noqa: E402
+import multiprocessing  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+from concurrent.futures import ProcessPoolExecutor  # noqa: E402
+from pathlib import Path  # noqa: E402
 
-import numpy as np
+import numpy as np  # noqa: E402
 
-from homogenization.fft import homogenize_fft
-from homogenization.tensors import isotropic_voigt
+from homogenization.fft import homogenize_fft  # noqa: E402
+from homogenization.tensors import isotropic_voigt  # noqa: E402
 
-COLUMNS = ["case", "N", "scheme", "discretization", "converged", "iterations", "wall_s", "plan_s", "ms_per_iteration",
-           "fft_ms_per_iteration", "iteration_to_fft_ratio", "work_MB", "peak_rss_MB", "C11", "C22", "C44"]
+COLUMNS = ["case", "N", "scheme", "discretization", "ranks", "converged", "iterations", "total_iterations", "wall_s",
+           "plan_s", "ms_per_iteration", "fft_ms_per_iteration", "iteration_to_fft_ratio", "work_MB",
+           "peak_rss_MB", "C11", "C22", "C44", "dC_vs_cg"]
+SOLID = isotropic_voigt(1.0, 0.3)
+
+
+def row(name, n, r, ranks=1):
+    """A table row from a HomogenizationResult (its C kept under "_C" for the comparisons)."""
+    i = r.info
+    rss = i.get("peak_rss_bytes_per_rank", [i["peak_rss_bytes"]])
+    work = i.get("work_bytes_per_rank", [i["work_bytes"]])
+    return {
+        "case": name, "N": n, "scheme": i["scheme"], "discretization": i["discretization"], "ranks": ranks,
+        "converged": r.converged, "iterations": "/".join(map(str, r.iterations)),
+        "total_iterations": sum(r.iterations), "wall_s": r.wall_s, "plan_s": i["plan_s"],
+        "ms_per_iteration": 1e3 * i["time_per_iteration_s"],
+        "fft_ms_per_iteration": 1e3 * i["fft_time_per_iteration_s"],
+        "iteration_to_fft_ratio": i["iteration_to_fft_ratio"], "work_MB": "/".join(f"{w / 2**20:.0f}" for w in work),
+        "peak_rss_MB": "/".join(f"{m / 2**20:.0f}" for m in rss), "C11": r.C[0, 0], "C22": r.C[1, 1],
+        "C44": r.C[3, 3], "dC_vs_cg": "", "_C": r.C.tolist(),
+    }
 
 
 def solve(name, phases, materials, scheme, discretization, tol, threads):
     """One case (run in a child process): solver statistics as a table row."""
     r = homogenize_fft(phases, materials, scheme=scheme, discretization=discretization, tol=tol, threads=threads,
                        raise_on_failure=False)
-    i = r.info
-    return {
-        "case": name, "N": phases.shape[0], "scheme": scheme, "discretization": discretization,
-        "converged": r.converged,
-        "iterations": "/".join(map(str, r.iterations)), "wall_s": r.wall_s, "plan_s": i["plan_s"],
-        "ms_per_iteration": 1e3 * i["time_per_iteration_s"],
-        "fft_ms_per_iteration": 1e3 * i["fft_time_per_iteration_s"],
-        "iteration_to_fft_ratio": i["iteration_to_fft_ratio"], "work_MB": i["work_bytes"] / 2**20,
-        "peak_rss_MB": i["peak_rss_bytes"] / 2**20, "C11": r.C[0, 0], "C22": r.C[1, 1], "C44": r.C[3, 3],
-    }
+    return row(name, phases.shape[0], r)
 
 
 def in_child(*args):
@@ -58,39 +81,108 @@ def sphere(n, radius):
     return (X**2 + Y**2 + Z**2 < radius**2).astype(np.int8)
 
 
-def foam_images(sizes, gammas, cells, seed, density):
+def foam_image(gamma, n, cells, seed, density):
+    from meshes.foam import VoronoiFoam
+
+    return VoronoiFoam(n_cells=cells, density=density, gamma=gamma, seed=seed).voxelize(n).astype(np.int8)
+
+
+def foam_cases(sizes, gammas, cells, seed, density):
     try:
-        from meshes.foam import VoronoiFoam
+        import meshes.foam  # noqa: F401
     except ImportError as exc:
         print(f"foam cases skipped: meshes.foam is not available ({exc}); use --image")
         return
     for gamma in gammas:
-        foam = VoronoiFoam(n_cells=cells, density=density, gamma=gamma, seed=seed)
         for n in sizes:
-            yield f"foam d={density} g={gamma}", foam.voxelize(n).astype(np.int8)
+            yield f"foam d={density} g={gamma}", foam_image(gamma, n, cells, seed, density)
 
 
-def main(out: Path, sizes, threads, image, contrast, contrast_n, tol):
-    out.mkdir(parents=True, exist_ok=True)
-    solid = isotropic_voigt(1.0, 0.3)
-    porous = [np.zeros((6, 6)), solid]
+def relative_gap(a, b):
+    a, b = np.asarray(a), np.asarray(b)
+    return float(np.abs(a - b).max() / np.abs(b).max())
+
+
+# --------------------------------------------------------------------------------------------------
+# Distributed runs: this script re-run under mpirun as a child (--mpi-child), one JSON row per run
+# --------------------------------------------------------------------------------------------------
+def mpi_child(args):
+    from mpi4py import MPI
+
+    comm = MPI.COMM_WORLD
+    from homogenization.fft import slab_planes
+
+    image = None
+    if comm.Get_rank() == 0:
+        image = foam_image(args.mpi_gamma, args.mpi_size, args.cells, args.seed, args.density)
+    shape = comm.bcast(None if image is None else image.shape)
+    start, stop = slab_planes(shape[0], comm)
+    local = np.empty((stop - start,) + tuple(shape[1:]), dtype=np.int8)
+    counts = [int(np.diff(slab_planes(shape[0], comm, r))[0]) * shape[1] * shape[2] for r in range(comm.Get_size())]
+    comm.Scatterv((image, counts) if comm.Get_rank() == 0 else None, local, root=0)
+    del image
+    r = homogenize_fft(local, [0 * SOLID, SOLID], tol=args.tol, threads=args.threads, comm=comm, slab=True,
+                       raise_on_failure=False)
+    if comm.Get_rank() == 0:
+        out = row(f"foam d={args.density} g={args.mpi_gamma} (distributed)", shape[0], r, comm.Get_size())
+        Path(args.mpi_child).write_text(json.dumps(out))
+
+
+def distributed(args, ranks):
     rows = []
-    if image:
-        cases = [(f"image {path.name}", np.load(path).astype(np.int8)) for path in image]
-    else:
-        cases = foam_images(sizes, (0.1, 1.0), cells=20, seed=1, density=0.18)
-    for name, phases in cases:
-        rows.append(in_child(name, phases, porous, "cg", "rotated", tol, threads))
-        print(format_row(rows[-1]), flush=True)
-    inclusion = sphere(contrast_n, 0.3)
-    stiff = [solid, contrast * solid]
-    for scheme in ("cg", "basic"):
-        for discretization in ("rotated", "spectral"):
-            rows.append(in_child(f"inclusion contrast {contrast:g}", inclusion, stiff, scheme, discretization, tol,
-                                 threads))
+    for k in ranks:
+        with tempfile.NamedTemporaryFile(suffix=".json", delete=False) as tmp:
+            target = tmp.name
+        command = ["mpirun", "-n", str(k), sys.executable, "-m", "mpi4py", __file__, "--mpi-child", target,
+                   "--mpi-size", str(args.mpi_size), "--mpi-gamma", str(args.mpi_gamma), "--seed", str(args.seed),
+                   "--tol", str(args.tol), "--threads", str(args.threads)]
+        env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+                   OMPI_MCA_btl_vader_single_copy_mechanism="none", OMPI_MCA_rmaps_base_oversubscribe="1")
+        done = subprocess.run(command, env=env, capture_output=True, text=True)
+        if done.returncode != 0:
+            print(f"distributed run with {k} ranks failed:\n{done.stderr[-2000:]}")
+        else:
+            rows.append(json.loads(Path(target).read_text()))
             print(format_row(rows[-1]), flush=True)
+        os.unlink(target)
+    return rows
+
+
+# --------------------------------------------------------------------------------------------------
+def main(args):
+    out = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    porous = [np.zeros((6, 6)), SOLID]
+    rows = []
+    if args.image:
+        cases = [(f"image {path.name}", np.load(path).astype(np.int8)) for path in args.image]
+    else:
+        cases = foam_cases(args.sizes, (1.0, 0.1), args.cells, args.seed, args.density)
+    for name, phases in cases:
+        reference = None
+        for scheme in args.schemes:
+            rows.append(in_child(name, phases, porous, scheme, "rotated", args.tol, args.threads))
+            if scheme == "cg":
+                reference = rows[-1]["_C"]
+            elif reference is not None:
+                rows[-1]["dC_vs_cg"] = f"{relative_gap(rows[-1]['_C'], reference):.1e}"
+            print(format_row(rows[-1]), flush=True)
+    if args.ranks:
+        serial = next((r for r in rows if r["N"] == args.mpi_size and r["scheme"] == "pcg"
+                       and f"g={args.mpi_gamma}" in r["case"]), None)
+        for r in distributed(args, args.ranks):
+            if serial is not None:
+                r["dC_vs_cg"] = f"vs serial pcg {relative_gap(r['_C'], serial['_C']):.1e}"
+            rows.append(r)
+    inclusion = sphere(args.contrast_n, 0.3)
+    stiff = [SOLID, args.contrast * SOLID]
+    for scheme, discretization in (("cg", "rotated"), ("pcg", "rotated"), ("basic", "rotated"), ("cg", "spectral"),
+                                   ("basic", "spectral")):
+        rows.append(in_child(f"inclusion contrast {args.contrast:g}", inclusion, stiff, scheme, discretization,
+                             args.tol, args.threads))
+        print(format_row(rows[-1]), flush=True)
     with open(out / "bench_fft.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, COLUMNS)
+        writer = csv.DictWriter(f, COLUMNS, extrasaction="ignore")
         writer.writeheader()
         writer.writerows(rows)
     print("\n" + "\n".join(table(rows)))
@@ -103,31 +195,45 @@ def _iterations(row):
 
 
 def format_row(row):
-    return (f"{row['case']:<26} N={row['N']:<4} {row['scheme']:<5} {row['discretization']:<8} "
-            f"it {_iterations(row):<34} wall {row['wall_s']:8.2f} s  {row['ms_per_iteration']:8.2f} ms/it  "
-            f"FFT {row['fft_ms_per_iteration']:8.2f} ms/it  ratio {row['iteration_to_fft_ratio']:5.2f}  "
-            f"work {row['work_MB']:7.1f} MB  RSS {row['peak_rss_MB']:7.1f} MB")
+    return (f"{row['case']:<34} N={row['N']:<4} {row['scheme']:<5} {row['discretization']:<8} ranks {row['ranks']} "
+            f"it {_iterations(row):<30} (Σ {row['total_iterations']:>5}) wall {row['wall_s']:8.2f} s  "
+            f"{row['ms_per_iteration']:8.2f} ms/it  FFT {row['fft_ms_per_iteration']:7.2f} ms/it  "
+            f"ratio {row['iteration_to_fft_ratio']:5.2f}  work {row['work_MB']} MB  RSS {row['peak_rss_MB']} MB  "
+            f"{row['dC_vs_cg']}")
 
 
 def table(rows):
-    head = ("case", "N", "scheme", "disc.", "iterations per load case", "wall s", "ms/it", "FFT ms/it", "ratio",
-            "work MB", "RSS MB")
+    head = ("case", "N", "scheme", "ranks", "iterations per load case", "Σ it", "wall s", "ms/it", "FFT ms/it",
+            "ratio", "work MB", "peak RSS MB", "ΔC")
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
-        lines.append(f"| {r['case']} | {r['N']} | {r['scheme']} | {r['discretization']} | {_iterations(r)} | "
-                     f"{r['wall_s']:.2f} | {r['ms_per_iteration']:.2f} | {r['fft_ms_per_iteration']:.2f} | "
-                     f"{r['iteration_to_fft_ratio']:.2f} | {r['work_MB']:.0f} | {r['peak_rss_MB']:.0f} |")
+        scheme = r["scheme"] if r["discretization"] == "rotated" else f"{r['scheme']} (spectral)"
+        lines.append(f"| {r['case']} | {r['N']} | {scheme} | {r['ranks']} | {_iterations(r)} | "
+                     f"{r['total_iterations']} | {r['wall_s']:.1f} | {r['ms_per_iteration']:.2f} | "
+                     f"{r['fft_ms_per_iteration']:.2f} | {r['iteration_to_fft_ratio']:.2f} | {r['work_MB']} | "
+                     f"{r['peak_rss_MB']} | {r['dC_vs_cg']} |")
     return lines
 
 
 if __name__ == "__main__":
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=Path, default=Path("out/bench"))
-    p.add_argument("--sizes", type=int, nargs="+", default=[32, 64, 128], help="foam resolutions N")
-    p.add_argument("--threads", type=int, default=None, help="solver threads (default: available CPUs)")
+    p.add_argument("--sizes", type=int, nargs="+", default=[64, 128], help="foam resolutions N")
+    p.add_argument("--schemes", nargs="+", default=["cg", "pcg"], choices=["cg", "pcg"])
+    p.add_argument("--cells", type=int, default=20)
+    p.add_argument("--density", type=float, default=0.18)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--threads", type=int, default=1, help="solver threads per process (default 1)")
     p.add_argument("--image", type=Path, nargs="+", default=None, help=".npy 0/1 images to run instead of the foams")
+    p.add_argument("--ranks", type=int, nargs="*", default=[1, 2], help="MPI rank counts of the distributed runs")
+    p.add_argument("--mpi-size", type=int, default=128, help="N of the distributed foam")
+    p.add_argument("--mpi-gamma", type=float, default=1.0, help="gamma of the distributed foam")
+    p.add_argument("--mpi-child", default=None, help=argparse.SUPPRESS)
     p.add_argument("--contrast", type=float, default=100.0, help="stiffness contrast of the inclusion case")
     p.add_argument("--contrast-n", type=int, default=32, help="voxels per side of the inclusion case")
-    p.add_argument("--tol", type=float, default=1e-6)
+    p.add_argument("--tol", type=float, default=1e-4)
     a = p.parse_args()
-    main(a.out, a.sizes, a.threads, a.image, a.contrast, a.contrast_n, a.tol)
+    if a.mpi_child:
+        mpi_child(a)
+    else:
+        main(a)

@@ -391,16 +391,18 @@ void ff_hex_apply(int64_t n2, int64_t n3, int64_t a, int64_t b, const double *p,
 }
 
 /* In place on the half spectrum of r (3 components, complex as (re, im) doubles, lines of h3 entries along the
- * last axis, ni * n2 lines from the block's first plane): hat <- scale K_I(xi)^-1 hat with the reference
+ * last axis, ni * n2 lines from the block's first plane; the last axis holds the global indices k_lo ...
+ * k_lo + h3 - 1 of 0 ... h_global - 1): hat <- scale K_I(xi)^-1 hat with the reference
  * operator K_I = B^T B (Mandel identity), K_I(xi) = (|k|^2 I + k k^T) / 2, so
  * K_I^-1 r = (2 / |k|^2) (r - (k.r) k / (2 |k|^2)); zero where |k|^2 <= kmin (k = 0: the mean and the hourglass
  * modes). The rotated wave vector k = (K0 C1 C2, C0 K1 C2, C0 C1 K2) is built from the per-axis tables
  * K_d = (2 / h_d) sin(pi m_d / N_d), C_d = cos(pi m_d / N_d) of the block's indices. Returns
- * sum w conj(r).z over the block, w = 1 on the single planes (last index 0, and h3 - 1 if nyquist), else 2:
+ * sum w conj(r).z over the block, w = 1 on the single planes (global last index 0, and h_global - 1 if
+ * nyquist), else 2:
  * with scale = 1/N^3 this is sum_x r.z of the transformed-back z (Parseval). */
 double ff_hex_green(int64_t ni, int64_t n2, int64_t h3, double *hat, int64_t stride, const double *K0,
                     const double *C0, const double *K1, const double *C1, const double *K2, const double *C2,
-                    double kmin, double scale, int nyquist)
+                    double kmin, double scale, int nyquist, int64_t k_lo, int64_t h_global)
 {
     double total = 0.0, single = 0.0;
     double *buf = malloc(5 * h3 * sizeof(double));
@@ -421,8 +423,10 @@ double ff_hex_green(int64_t ni, int64_t n2, int64_t h3, double *hat, int64_t str
             }
             /* the single planes (last index 0, and h3 - 1 on an even axis) count once in Parseval's sum: their
              * r.z (from the untransformed r) is subtracted once from the doubled total */
-            for (int e = 0; e < 1 + (nyquist && h3 > 1); ++e) {
-                const int64_t k = e ? h3 - 1 : 0;
+            for (int e = 0; e < 2; ++e) {
+                const int64_t k = e ? h_global - 1 - k_lo : -k_lo; /* global last index 0 and h_global - 1 */
+                if (k < 0 || k >= h3 || (e && (!nyquist || h_global < 2)))
+                    continue;
                 for (int part = 0; part < 2; ++part) {
                     const double r0 = x[2 * k + part], r1 = y[2 * k + part], r2 = z[2 * k + part];
                     const double kr = half[k] * (k0[k] * r0 + k1[k] * r1 + k2[k] * r2);

@@ -37,7 +37,7 @@ void ff_hex_apply(int64_t n2, int64_t n3, int64_t a, int64_t b, const double *p,
                   const double *h, double *q, int64_t qstride, double *sums);
 double ff_hex_green(int64_t ni, int64_t n2, int64_t h3, double *hat, int64_t stride, const double *K0,
                     const double *C0, const double *K1, const double *C1, const double *K2, const double *C2,
-                    double kmin, double scale, int nyquist);
+                    double kmin, double scale, int nyquist, int64_t k_lo, int64_t h_global);
 double ff_axpby(int64_t n, int ncomp, const double *alpha, const double *x, int64_t xstride, double beta,
                 double *y, int64_t ystride, int norm);
 """

@@ -89,7 +89,7 @@ class NodalWorkspace:
         self.r = pyfftw.empty_aligned((3, n, N2, N3), dtype=np.float64)
         self.q = pyfftw.empty_aligned((3, n, N2, N3), dtype=np.float64)  # K p, and z = K_I⁻¹ r after backward
         if self.comm is None:
-            self.spec_lo, self.n2 = 0, N2
+            spec = (slice(0, N1), slice(0, N2), slice(0, H))
             self.hat = pyfftw.empty_aligned((3, N1, N2, H), dtype=np.complex128)
             self._forward = pyfftw.FFTW(self.r, self.hat, axes=(1, 2, 3), direction="FFTW_FORWARD",
                                         flags=("FFTW_MEASURE",), threads=threads)
@@ -100,21 +100,22 @@ class NodalWorkspace:
             from mpi4py_fft import PFFT
 
             self.pfft = PFFT(self.comm, self.shape, axes=(0, 1, 2), dtype=np.float64, grid=(-1,),
-                             planner_effort="FFTW_MEASURE", threads=threads)
+                             planner_effort="FFTW_MEASURE", threads=threads, collapse=True)
             real, spec = self.pfft.local_slice(False), self.pfft.local_slice(True)
             if (real[0].start, real[0].stop) != (self.i0, self.i0 + n) or real[1:] != (slice(0, N2), slice(0, N3)):
                 raise RuntimeError(f"mpi4py-fft distributes the planes as {real}, not [{self.i0}, {self.i0 + n})")
-            self.spec_lo, self.n2 = spec[1].start, spec[1].stop - spec[1].start
-            self.hat = np.empty((3, N1, self.n2, H), dtype=np.complex128)
+            self.hat = np.empty((3,) + tuple(s.stop - s.start for s in spec), dtype=np.complex128)
         self.plan_s = time.perf_counter() - t0
-        # rotated wave-vector tables of the local spectrum (axis 0 whole, axis 1 this rank's range)
-        self.K0, self.C0 = rotated_tables(N1, self.h[0], np.arange(N1))
-        self.K1, self.C1 = rotated_tables(N2, self.h[1], np.arange(self.spec_lo, self.spec_lo + self.n2))
-        self.K2, self.C2 = rotated_tables(N3, self.h[2], np.arange(H))
+        # rotated wave-vector tables of this rank's block of the spectrum (mpi4py-fft distributes one axis)
+        self.spec = spec
+        self.K0, self.C0 = rotated_tables(N1, self.h[0], np.arange(spec[0].start, spec[0].stop))
+        self.K1, self.C1 = rotated_tables(N2, self.h[1], np.arange(spec[1].start, spec[1].stop))
+        self.K2, self.C2 = rotated_tables(N3, self.h[2], np.arange(spec[2].start, spec[2].stop))
         self.kmin = 1e-20 * float(np.sum((2.0 / self.h) ** 2))  # |k|² below this: k = 0 (mean, hourglass)
         # threads: one contiguous range of planes each (real space), and of axis-0 planes of the spectrum
         self.ranges = [(int(r[0]), int(r[-1]) + 1) for r in np.array_split(np.arange(n), threads) if len(r)]
-        self.spec_ranges = [(int(r[0]), int(r[-1]) + 1) for r in np.array_split(np.arange(N1), threads) if len(r)]
+        self.spec_ranges = [(int(r[0]), int(r[-1]) + 1) for r in np.array_split(np.arange(self.hat.shape[1]), threads)
+                            if len(r)]
         self.pool = ThreadPoolExecutor(len(self.ranges)) if len(self.ranges) > 1 else None
 
     # ---------------------------------------------------------------------------------------------------
@@ -208,7 +209,9 @@ class NodalWorkspace:
                 self.pfft.forward(self.r[c], self.hat[c], normalize=False)
         self.fft_s += time.perf_counter() - t0
         self.fft_calls += 1
-        N2loc, H = self.n2, self.shape[2] // 2 + 1
+        _, N2loc, Hloc = self.hat.shape[1:]
+        H = self.shape[2] // 2 + 1
+        k_lo = self.spec[2].start
         nyquist = self.shape[2] % 2 == 0 and H > 1
         scale = 1.0 / self.size
         if self.native is not None:
@@ -217,12 +220,13 @@ class NodalWorkspace:
             stride = 2 * self.hat[0].size
 
             def kernel(a, b):
-                return lib.ff_hex_green(b - a, N2loc, H, ffi.cast("double *", self.hat.ctypes.data) + 2 * a * N2loc * H,
-                                        stride, ptr(self.K0) + a, ptr(self.C0) + a, ptr(self.K1), ptr(self.C1),
-                                        ptr(self.K2), ptr(self.C2), self.kmin, scale, nyquist)
+                return lib.ff_hex_green(b - a, N2loc, Hloc,
+                                        ffi.cast("double *", self.hat.ctypes.data) + 2 * a * N2loc * Hloc, stride,
+                                        ptr(self.K0) + a, ptr(self.C0) + a, ptr(self.K1), ptr(self.C1),
+                                        ptr(self.K2), ptr(self.C2), self.kmin, scale, nyquist, k_lo, H)
         else:
             def kernel(a, b):
-                return _green_numpy(self, a, b, scale, nyquist)
+                return _green_numpy(self, a, b, scale, nyquist, k_lo, H)
         rz = float(self._run(kernel, self.spec_ranges)[0])
         t0 = time.perf_counter()
         if self.pfft is None:
@@ -323,7 +327,7 @@ def _apply_numpy(ws: NodalWorkspace, a: int, b: int, with_p: bool, E) -> np.ndar
     return sums
 
 
-def _green_numpy(ws: NodalWorkspace, a: int, b: int, scale: float, nyquist: bool) -> float:
+def _green_numpy(ws: NodalWorkspace, a: int, b: int, scale: float, nyquist: bool, k_lo: int, H: int) -> float:
     k = [ws.K0[a:b, None, None] * ws.C1[None, :, None] * ws.C2[None, None, :],
          ws.C0[a:b, None, None] * ws.K1[None, :, None] * ws.C2[None, None, :],
          ws.C0[a:b, None, None] * ws.C1[None, :, None] * ws.K2[None, None, :]]
@@ -334,10 +338,8 @@ def _green_numpy(ws: NodalWorkspace, a: int, b: int, scale: float, nyquist: bool
     r = ws.hat[:, a:b]
     kr = (k[0] * r[0] + k[1] * r[1] + k[2] * r[2]) * (0.5 / kk)
     z = np.stack([amp * (r[c] - kr * k[c]) for c in range(3)])
-    w = np.full(kk.shape[-1], 2.0)
-    w[0] = 1.0
-    if nyquist:
-        w[-1] = 1.0
+    index = k_lo + np.arange(kk.shape[-1])  # global indices of the last axis
+    w = np.where((index == 0) | (nyquist & (index == H - 1)), 1.0, 2.0)
     total = float(np.sum(w * np.real(np.conj(r) * z).sum(axis=0)))
     r[...] = z
     return total

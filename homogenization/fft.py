@@ -716,10 +716,11 @@ def homogenize_fft(
         the nodal solution gives there (the problem does not determine it; its stress is zero).
     comm
         mpi4py communicator: with more than one rank the image is distributed over the ranks in slabs of planes
-        along axis 0 (:func:`slab_planes`), the FFTs by mpi4py-fft (spectrum distributed along axis 1); scheme
+        along axis 0 (:func:`slab_planes`), the FFTs by mpi4py-fft; scheme
         ``"pcg"``, discretization ``"rotated"``. Every rank returns the same result (``info`` adds ``ranks``,
-        ``planes``, ``work_bytes_per_rank``, ``peak_rss_bytes_per_rank``). At most ``min(N1, N2)`` ranks; any
-        rank count up to that works (uneven slabs). Call it on every rank of ``comm``.
+        ``planes``, ``work_bytes_per_rank``, ``peak_rss_bytes_per_rank``). At most ``min(N1, N3//2 + 1)`` ranks
+        (the spectrum is split along its last axis); any rank count up to that works (uneven slabs). Call it on
+        every rank of ``comm``.
     slab
         Distributed mode only: ``phases`` is this rank's slab ``phases[slice(*slab_planes(N1, comm))]`` of the
         global image, for images too large for one rank; default: every rank passes the same full image.
@@ -921,9 +922,11 @@ def _check_inputs_distributed(phases, materials, comm, slab, **settings) -> _Run
         if any(s != shapes[0] for s in shapes):
             raise ValueError(f"every rank must pass the same full image (or use slab=True); got shapes {shapes}")
         shape = tuple(shapes[0])
-    if size > shape[0] or size > shape[1]:
-        raise ValueError(f"distributed mode needs at most min(N1, N2) = {min(shape[:2])} ranks for an image of "
-                         f"shape {shape} (one plane per rank in physical and in Fourier space); got {size} ranks")
+    most = min(shape[0], shape[2] // 2 + 1)
+    if size > most:
+        raise ValueError(f"distributed mode needs at most min(N1, N3//2 + 1) = {most} ranks for an image of shape "
+                         f"{shape} (one plane per rank in physical space along axis 0, in Fourier space along axis "
+                         f"2); got {size} ranks")
     i0, i1 = slab_planes(shape[0], comm)
     if slab:
         expected = [int(np.diff(slab_planes(shape[0], comm, r))[0]) for r in range(size)]

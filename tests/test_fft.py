@@ -494,8 +494,9 @@ def three_phase_image(shape):
 @pytest.mark.mpi
 @pytest.mark.parametrize("shape", [(15, 13, 11), (16, 12, 10)])
 def test_distributed_result_equals_serial(shape):
-    """Odd and even grids; under ``mpirun -n 2`` the 15 planes split 8 + 7 (uneven) and the 13 spectral lines
-    7 + 6. Full image on every rank and local slabs give the serial C (measured to 4e-16) and fields."""
+    """Odd and even grids; under ``mpirun -n 2`` the 15 planes split 8 + 7 (uneven), and so do the 6 or 7
+    spectral planes of the last axis. Full image on every rank and local slabs give the serial C (measured to
+    4e-16) and fields."""
     from homogenization.fft import slab_planes
 
     comm = world()
@@ -523,9 +524,11 @@ def test_distributed_bad_input_fails_on_every_rank():
     if comm.Get_size() == 1:
         pytest.skip("needs mpirun -n 2 or more")
     size = comm.Get_size()
-    with pytest.raises(ValueError, match=r"at most min\(N1, N2\) = 1 ranks"):
+    with pytest.raises(ValueError, match=r"at most min\(N1, N3//2 \+ 1\) = 1 ranks"):
         homogenize_fft(np.zeros((1, 8, 8), dtype=int), [C_SOFT], comm=comm)
-    with pytest.raises(ValueError, match=rf"at most min\(N1, N2\) = {size - 1} ranks"):  # the last slab is empty
+    with pytest.raises(ValueError, match=r"at most min\(N1, N3//2 \+ 1\) = 1 ranks"):
+        homogenize_fft(np.zeros((8, 8, 1), dtype=int), [C_SOFT], comm=comm)
+    with pytest.raises(ValueError, match=rf"at most min\(N1, N3//2 \+ 1\) = {size - 1} ranks"):  # an empty slab
         homogenize_fft(np.zeros((int(comm.Get_rank() < size - 1), 8, 8), dtype=int), [C_SOFT], comm=comm, slab=True)
     with pytest.raises(ValueError, match="slab_planes"):  # the last rank passes one plane too many
         homogenize_fft(np.zeros((4 + (comm.Get_rank() == size - 1), 8, 8), dtype=int), [C_SOFT], comm=comm,
