@@ -15,6 +15,10 @@
  * would then evict each other from the same cache sets. Sums use `omp simd` reductions (-fopenmp-simd: no
  * OpenMP runtime), so that they vectorize; their rounding differs from a sequential sum at the 1e-16 level. */
 #define TILE 2048
+/* row r of the 6x6 matrix T times the strain (e0 ... e5) */
+#define ROW6(T, r) \
+    (T[6 * (r)] * e0 + T[6 * (r) + 1] * e1 + T[6 * (r) + 2] * e2 + T[6 * (r) + 3] * e3 + T[6 * (r) + 4] * e4 \
+     + T[6 * (r) + 5] * e5)
 
 /* Optionally p <- r + beta p (the CG search direction, update != 0), then sig = T[phase] p with T the
  * per-phase 6x6 matrix from Mandel strain to tensor stress (nphase of them, row-major); returns
@@ -205,6 +209,7 @@ static void hex_voxel_plane(int64_t v, int64_t n2, int64_t n3, const double *p, 
         }
         const double *P0 = p + c * pstride + (v + 1) * plane, *P1 = P0 + plane;
         for (int64_t j = 0; j < n2; ++j) {
+#pragma omp simd
             for (int64_t k = 0; k < n3; ++k) {
                 sc[j * row + k] = 0.5 * (P0[j * n3 + k] + P1[j * n3 + k]);
                 dc[j * row + k] = inv0 * (P1[j * n3 + k] - P0[j * n3 + k]);
@@ -228,9 +233,9 @@ static void hex_voxel_plane(int64_t v, int64_t n2, int64_t n3, const double *p, 
         if (!empty[ph])
             nonvoid[nnv++] = ph;
     double energy = 0.0, mean[6] = {0, 0, 0, 0, 0, 0};
-    double *restrict ev[6]; /* Mandel strain of one voxel row */
-    for (int c = 0; c < 6; ++c)
-        ev[c] = ebuf + c * n3;
+    /* Mandel strain of one voxel row */
+    double *restrict ev0 = ebuf, *restrict ev1 = ebuf + n3, *restrict ev2 = ebuf + 2 * n3;
+    double *restrict ev3 = ebuf + 3 * n3, *restrict ev4 = ebuf + 4 * n3, *restrict ev5 = ebuf + 5 * n3;
     const double E0 = E ? E[0] : 0.0, E1 = E ? E[1] : 0.0, E2 = E ? E[2] : 0.0, E3 = E ? E[3] : 0.0,
                  E4 = E ? E[4] : 0.0, E5 = E ? E[5] : 0.0;
     for (int64_t j = 0; j < n2; ++j) {
@@ -243,6 +248,7 @@ static void hex_voxel_plane(int64_t v, int64_t n2, int64_t n3, const double *p, 
         double *restrict o0 = tr[0] + (j + 1) * row + 1, *restrict o1 = tr[1] + (j + 1) * row + 1,
                          *restrict o2 = tr[2] + (j + 1) * row + 1, *restrict o3 = tr[3] + (j + 1) * row + 1,
                          *restrict o4 = tr[4] + (j + 1) * row + 1, *restrict o5 = tr[5] + (j + 1) * row + 1;
+#pragma omp simd
         for (int64_t k = 0; k < n3; ++k) {
             /* one-point gradients: along 0 from the plane differences d, along 1 and 2 from the plane means s */
             const double a00 = 0.25 * (d0[k] + d0[k + 1] + b0[k] + b0[k + 1]);
@@ -254,12 +260,12 @@ static void hex_voxel_plane(int64_t v, int64_t n2, int64_t n3, const double *p, 
             const double a02 = q2 * (s0[k + 1] + t0[k + 1] - s0[k] - t0[k]);
             const double a12 = q2 * (s1[k + 1] + t1[k + 1] - s1[k] - t1[k]);
             const double a22 = q2 * (s2[k + 1] + t2[k + 1] - s2[k] - t2[k]);
-            ev[0][k] = a00 + E0;
-            ev[1][k] = a11 + E1;
-            ev[2][k] = a22 + E2;
-            ev[3][k] = SQ * (a12 + a21) + E3;
-            ev[4][k] = SQ * (a02 + a20) + E4;
-            ev[5][k] = SQ * (a01 + a10) + E5;
+            ev0[k] = a00 + E0;
+            ev1[k] = a11 + E1;
+            ev2[k] = a22 + E2;
+            ev3[k] = SQ * (a12 + a21) + E3;
+            ev4[k] = SQ * (a02 + a20) + E4;
+            ev5[k] = SQ * (a01 + a10) + E5;
         }
         if (nnv == 0)
             for (int64_t k = 0; k < n3; ++k)
@@ -272,32 +278,58 @@ static void hex_voxel_plane(int64_t v, int64_t n2, int64_t n3, const double *p, 
             double T[36];
             for (int a = 0; a < 36; ++a)
                 T[a] = tables[36 * ph + a];
-            if (qn == 0) /* the first sweep writes (never reads the previous plane's values), the others add */
-                for (int64_t k = 0; k < n3; ++k)
-                    o0[k] = o1[k] = o2[k] = o3[k] = o4[k] = o5[k] = 0.0;
+            if (qn == 0) { /* the first sweep writes (never reads the previous plane's values), the others add */
 #pragma omp simd reduction(+ : en, m0, m1, m2, m3, m4, m5)
-            for (int64_t k = 0; k < n3; ++k) {
-                const double mask = (idr[k] == ph) ? 1.0 : 0.0;
-                const double e0 = ev[0][k], e1 = ev[1][k], e2 = ev[2][k], e3 = ev[3][k], e4 = ev[4][k], e5 = ev[5][k];
-                const double y0 = mask * (T[0] * e0 + T[1] * e1 + T[2] * e2 + T[3] * e3 + T[4] * e4 + T[5] * e5);
-                const double y1 = mask * (T[6] * e0 + T[7] * e1 + T[8] * e2 + T[9] * e3 + T[10] * e4 + T[11] * e5);
-                const double y2 = mask * (T[12] * e0 + T[13] * e1 + T[14] * e2 + T[15] * e3 + T[16] * e4 + T[17] * e5);
-                const double y3 = mask * (T[18] * e0 + T[19] * e1 + T[20] * e2 + T[21] * e3 + T[22] * e4 + T[23] * e5);
-                const double y4 = mask * (T[24] * e0 + T[25] * e1 + T[26] * e2 + T[27] * e3 + T[28] * e4 + T[29] * e5);
-                const double y5 = mask * (T[30] * e0 + T[31] * e1 + T[32] * e2 + T[33] * e3 + T[34] * e4 + T[35] * e5);
-                o0[k] += y0;
-                o1[k] += y1;
-                o2[k] += y2;
-                o3[k] += y3;
-                o4[k] += y4;
-                o5[k] += y5;
-                en += w[0] * e0 * y0 + w[1] * e1 * y1 + w[2] * e2 * y2 + w[3] * e3 * y3 + w[4] * e4 * y4 + w[5] * e5 * y5;
-                m0 += y0;
-                m1 += y1;
-                m2 += y2;
-                m3 += y3;
-                m4 += y4;
-                m5 += y5;
+                for (int64_t k = 0; k < n3; ++k) {
+                    const double mask = (idr[k] == ph) ? 1.0 : 0.0;
+                    const double e0 = ev0[k], e1 = ev1[k], e2 = ev2[k], e3 = ev3[k], e4 = ev4[k], e5 = ev5[k];
+                    const double y0 = mask * ROW6(T, 0);
+                    const double y1 = mask * ROW6(T, 1);
+                    const double y2 = mask * ROW6(T, 2);
+                    const double y3 = mask * ROW6(T, 3);
+                    const double y4 = mask * ROW6(T, 4);
+                    const double y5 = mask * ROW6(T, 5);
+                    o0[k] = y0;
+                    o1[k] = y1;
+                    o2[k] = y2;
+                    o3[k] = y3;
+                    o4[k] = y4;
+                    o5[k] = y5;
+                    en += w[0] * e0 * y0 + w[1] * e1 * y1 + w[2] * e2 * y2 + w[3] * e3 * y3 + w[4] * e4 * y4
+                          + w[5] * e5 * y5;
+                    m0 += y0;
+                    m1 += y1;
+                    m2 += y2;
+                    m3 += y3;
+                    m4 += y4;
+                    m5 += y5;
+                }
+            } else {
+#pragma omp simd reduction(+ : en, m0, m1, m2, m3, m4, m5)
+                for (int64_t k = 0; k < n3; ++k) {
+                    const double mask = (idr[k] == ph) ? 1.0 : 0.0;
+                    const double e0 = ev0[k], e1 = ev1[k], e2 = ev2[k], e3 = ev3[k], e4 = ev4[k], e5 = ev5[k];
+                    const double y0 = mask * ROW6(T, 0);
+                    const double y1 = mask * ROW6(T, 1);
+                    const double y2 = mask * ROW6(T, 2);
+                    const double y3 = mask * ROW6(T, 3);
+                    const double y4 = mask * ROW6(T, 4);
+                    const double y5 = mask * ROW6(T, 5);
+                    o0[k] += y0;
+                    o1[k] += y1;
+                    o2[k] += y2;
+                    o3[k] += y3;
+                    o4[k] += y4;
+                    o5[k] += y5;
+                    en += w[0] * e0 * y0 + w[1] * e1 * y1 + w[2] * e2 * y2 + w[3] * e3 * y3 + w[4] * e4 * y4
+                          + w[5] * e5 * y5;
+                    m0 += y0;
+                    m1 += y1;
+                    m2 += y2;
+                    m3 += y3;
+                    m4 += y4;
+                    m5 += y5;
+                }
             }
         }
         energy += en;
