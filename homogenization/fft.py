@@ -1,4 +1,4 @@
-"""FFT homogenization of a periodic voxel image: Galerkin/conjugate-gradient and Moulinec–Suquet schemes.
+"""FFT homogenization of a periodic voxel image: conjugate gradients (strain or displacement), Moulinec–Suquet.
 
 The cell problem
 ----------------
@@ -35,33 +35,51 @@ The wave vector ``k`` depends on the discretization:
 
 Schemes and stopping criterion
 ------------------------------
-``"cg"`` (default; Zeman et al. 2010, Vondřejc et al. 2014)
+``"pcg"`` (default with ``"rotated"``; Ladecký et al. 2023)
+    The rotated scheme solved for the nodal displacements ``u`` of the trilinear voxels: ``Bᵀ C B u = −Bᵀ C E``
+    by conjugate gradients preconditioned with the Green operator ``(Bᵀ B)⁻¹`` (diagonal in Fourier space), see
+    :mod:`homogenization._nodal`. Its iterates are those of ``"cg"`` mapped by ``B``: same residuals, iteration
+    counts and C, with one FFT pair of 3 (not 6) components per iteration and about half the work arrays.
+    It also runs distributed over MPI ranks (``comm=``).
+``"cg"`` (default with ``"spectral"``; Zeman et al. 2010, Vondřejc et al. 2014)
     Solve ``G[C : ε̃] = −G[C : E]`` for ``ε̃`` in the range of ``G`` with conjugate gradients; the operator is
     symmetric positive semi-definite there (Mandel inner product), also with a zero-stiffness phase.
 ``"basic"`` (Moulinec & Suquet 1998)
     ``ε ← ε − Γ0[C : ε]`` with the reference medium of :func:`reference_medium`; it needs every phase present
     to be positive definite.
 
-Both stop when the **equilibrium residual relative to the load**, ``‖G[σ]‖ / ‖G[C : E]‖`` (``L²`` norms of
-Mandel fields), is ``≤ tol``. For CG it is exactly the relative CG residual ``‖r_k‖/‖r_0‖``. If ``G[C : E]``
+All stop when the **equilibrium residual relative to the load**, ``‖G[σ]‖ / ‖G[C : E]‖`` (``L²`` norms of
+Mandel fields), is ``≤ tol``. For CG it is exactly the relative CG residual ``‖r_k‖/‖r_0‖``; for ``"pcg"`` the
+relative preconditioned residual ``sqrt(rᵀ K_I⁻¹ r / r₀ᵀ K_I⁻¹ r₀)``, the same number. If ``G[C : E]``
 vanishes to round-off (``‖G[C:E]‖ ≤ 1e3 ε_mach ‖C:E‖``, e.g. a homogeneous image) the case is solved by
 ``ε = E`` in zero iterations. Not reaching ``tol`` within ``maxiter`` raises :class:`FFTConvergenceError`
 (or, with ``raise_on_failure=False``, returns a result with ``converged=False``).
 
+With a zero-stiffness void CG needs hundreds of iterations on thin-strut foams. The slow modes are
+near-zero-energy hourglass patterns of the one-point-integrated voxels along the pore surfaces (smallest Ritz
+values of the Green-preconditioned operator ~1e-5 at N = 32 and 64): no Fourier-diagonal operator sees where the
+surfaces are, and neither a Jacobi scaling (the Green–Jacobi preconditioner) nor a coarse-grid correction removes
+them (measurements in ``docs/benchmarks``).
+
 Performance
 -----------
-One pair of pyfftw plans (``FFTW_MEASURE``, multithreaded, batched over the six components) per call; FFTW
-keeps its wisdom for the process, so planning a shape again is immediate. All ``N³`` work arrays are allocated
-once for all load cases. Between the transforms, each iteration makes three passes over memory: the
-constitutive update (with the CG direction update and ``⟨p, C:p⟩`` fused in), the Fourier kernel ``G`` and the
-residual update with its norm. They are fused C kernels (``_kernels.c``, compiled once per machine by
+``"cg"`` and ``"basic"``: one pair of pyfftw plans (``FFTW_MEASURE``, multithreaded, batched over the six
+components) per call; FFTW keeps its wisdom for the process, so planning a shape again is immediate. All ``N³``
+work arrays are allocated once for all load cases. Between the transforms, each iteration makes three passes over
+memory: the constitutive update (with the CG direction update and ``⟨p, C:p⟩`` fused in), the Fourier kernel ``G``
+and the residual update with its norm. They are fused C kernels (``_kernels.c``, compiled once per machine by
 :mod:`homogenization._native`, called through cffi on blocks of planes on ``threads`` threads); without a C
-compiler the same algebra runs as numpy ufuncs on cache-sized blocks (several passes each, the constitutive
-update one 6×6 product per phase and block, never a loop over voxels). Keep OpenBLAS at one thread
-(``OPENBLAS_NUM_THREADS=1`` before importing numpy): its threads spin against FFTW's. The CG iterate itself is
-not stored (unless the fields are asked for): ``⟨σ⟩`` is accumulated from the averages of ``C : p_k`` (read from
-the zero frequency of the transform that is needed anyway), and ``⟨p, G[C:p]⟩ = ⟨p, C:p⟩`` (``p`` is in the
-range of ``G``) is summed during the constitutive pass.
+compiler the same algebra runs as numpy ufuncs on cache-sized blocks (several passes each, the constitutive update
+one 6×6 product per phase and block, never a loop over voxels). Keep OpenBLAS at one thread
+(``OPENBLAS_NUM_THREADS=1`` before importing numpy): its threads spin against FFTW's. The CG iterate itself is not
+stored (unless the fields are asked for): ``⟨σ⟩`` is accumulated from the averages of ``C : p_k`` (read from the
+zero frequency of the transform that is needed anyway), and ``⟨p, G[C:p]⟩ = ⟨p, C:p⟩`` (``p`` is in the range of
+``G``) is summed during the constitutive pass.
+
+``"pcg"``: per iteration one fused pass applies the hexahedron stencil ``K p = Bᵀ C B p`` voxel plane by voxel
+plane (and sums ``⟨p, K p⟩`` and ``⟨C B p⟩`` for ``⟨σ⟩``), one pass updates the residual, one batched FFT pair
+of the 3 displacement components wraps the Fourier kernel of ``(Bᵀ B)⁻¹`` (which also returns ``rᵀ z`` by
+Parseval), and one pass updates the search direction. Its arrays are about 12.5·8·N³ bytes (``"cg"``: 26·8·N³).
 """
 
 from __future__ import annotations

@@ -1,0 +1,262 @@
+"""Preconditioners for the displacement form of the rotated scheme on a void foam: iteration counts.
+
+The cell problem ``K u = b`` (``K = Bᵀ C B``, trilinear voxels with one-point quadrature, zero-stiffness void; see
+``homogenization._nodal``) is solved by preconditioned CG to ``tol`` for load cases ``--cases`` with:
+
+``green``
+    ``M⁻¹ = K_I⁻¹`` (``K_I = Bᵀ B``, diagonal in Fourier space): what ``scheme="pcg"`` (and, mapped by ``B``,
+    ``scheme="cg"``) does.
+``green-jacobi``
+    ``M⁻¹ = S K_I⁻¹ S`` with ``S = (diag K_I / diag K)^½`` per node and component (0 where ``diag K = 0``): the
+    Green–Jacobi preconditioner of Ladecký, Pultarová, Bignonnet, Jödicke, Zeman, Pastewka (2025).
+``green-hom``
+    ``M⁻¹ = K_0⁻¹`` with ``K_0 = Bᵀ C_0 B`` for the reference ``C_0`` = the foam's homogenized stiffness (from a
+    ``pcg`` solve): an anisotropic reference medium, still diagonal (3×3 blocks) in Fourier space.
+``two-grid-F``, ``two-grid-hg-F``
+    Green with an exact coarse-grid correction (balancing form ``(I − QK) K_I⁻¹ (I − KQ) + Q``,
+    ``Q = P (Pᵀ K P)⁻¹ Pᵀ``) on the trilinear interpolation ``P`` from a grid ``F`` times coarser, optionally
+    enriched by the four hourglass sign patterns (``hg``); the coarse matrix is assembled and factorized
+    (scipy), which limits this to small N.
+
+Each row reports the iterations and the stopping value, the **equilibrium residual of the final iterate in the
+Green norm** ``‖r‖_{K_I⁻¹}/‖r_0‖_{K_I⁻¹}`` (= ``‖G[σ]‖/‖G[C:E]‖``, the stopping criterion of ``pcg``, so the
+rows are comparable whatever the preconditioner's own norm) and ``C_JJ``. ``--ritz`` also prints the smallest
+Ritz values of the Green-preconditioned operator (from the CG coefficients of the ``green`` runs).
+Usage: ``python bench/bench_fft_preconditioners.py --out out/bench [--n 32] [--gamma 1]``; writes
+``DIR/bench_fft_preconditioners.csv``.
+"""
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import csv  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+import scipy.sparse as sp  # noqa: E402
+import scipy.sparse.linalg as spl  # noqa: E402
+
+from homogenization import _nodal  # noqa: E402
+from homogenization.fft import homogenize_fft  # noqa: E402
+from homogenization.tensors import isotropic_voigt, voigt_to_mandel  # noqa: E402
+
+PAIRS = ((0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1))
+
+
+class Problem:
+    """K p and K_I⁻¹ r from the solver's own kernels (homogenization._nodal), on flat nodal vectors."""
+
+    def __init__(self, phases, stiffness_mandel):
+        self.phases, self.shape = phases, phases.shape
+        ids = np.unique(phases)
+        tables = np.zeros((ids.max() + 1, 6, 6))
+        for p in ids:
+            tables[p] = stiffness_mandel[p] / _nodal.MANDEL[:, None]
+        self.stiffness = stiffness_mandel
+        self.ws = _nodal.NodalWorkspace(phases, tables, self.shape, (1.0, 1.0, 1.0), 1, False)
+
+    def apply(self, u, E=None):
+        """(K u − Bᵀ C E, mean stress)"""
+        ws = self.ws
+        if u is not None:
+            ws.p[:, 1:-1] = u
+            ws.fill_ghosts(ws.p)
+        _, stress = ws.apply(u is not None, E)
+        return ws.q.copy(), stress / ws.size
+
+    def green(self, r):
+        self.ws.r[...] = r
+        self.ws.precondition()
+        return self.ws.q.copy()
+
+
+def pcg(problem, E, tol, maxiter, precondition):
+    """PCG on K u = −Bᵀ C E; returns iterations, mean stress, the relative Green norm of the final residual and
+    the CG coefficients (α, β)."""
+    b, mean = problem.apply(None, E)
+    r = -b
+    g0 = np.sqrt(np.vdot(r, problem.green(r)))
+    z = precondition(r)
+    rz = rz0 = np.vdot(r, z)
+    p = z.copy()
+    coefficients = []
+    while len(coefficients) < maxiter:
+        q, mean_p = problem.apply(p)
+        alpha = rz / np.vdot(p, q)
+        mean = mean + alpha * mean_p
+        r -= alpha * q
+        z = precondition(r)
+        rz_new = np.vdot(r, z)
+        coefficients.append((alpha, rz_new / rz))
+        if np.sqrt(max(rz_new, 0.0) / rz0) <= tol:
+            break
+        p = z + (rz_new / rz) * p
+        rz = rz_new
+    return len(coefficients), mean, float(np.sqrt(np.vdot(r, problem.green(r))) / g0), coefficients
+
+
+def ritz_values(coefficients):
+    """Eigenvalues of the Lanczos matrix of CG (α_k, β_k)."""
+    n = len(coefficients)
+    T = np.zeros((n, n))
+    for i, (a, _) in enumerate(coefficients):
+        T[i, i] = 1 / a + (coefficients[i - 1][1] / coefficients[i - 1][0] if i else 0.0)
+        if i + 1 < n:
+            T[i, i + 1] = T[i + 1, i] = np.sqrt(coefficients[i][1]) / a
+    return np.linalg.eigvalsh(T)
+
+
+# --------------------------------------------------------------------------------------------------
+def element_B(h=(1.0, 1.0, 1.0)):
+    """6×24 Mandel strain of one voxel from its 8 corner displacements (corner order np.ndindex(2, 2, 2))."""
+    B = np.zeros((6, 24))
+    for ci, corner in enumerate(np.ndindex(2, 2, 2)):
+        g = np.array([(1 if corner[d] else -1) / (4 * h[d]) for d in range(3)])
+        for c in range(3):
+            G = np.zeros((3, 3))
+            G[c] = g
+            B[:, 3 * ci + c] = [G[a, a] if a == d else (G[a, d] + G[d, a]) / np.sqrt(2) for a, d in PAIRS]
+    return B
+
+
+def assemble(phases, stiffness):
+    """Sparse K (nodal dofs 3·node + component, node = C index of its voxel's lower corner)."""
+    N, n = phases.shape, phases.size
+    B = element_B(tuple(1.0 / np.array(N)))  # the unit cube, as the solver's kernels
+    index = np.arange(n).reshape(N)
+    dofs = np.array([3 * np.roll(index, tuple(-c for c in corner), axis=(0, 1, 2)).ravel() + comp
+                     for corner in np.ndindex(2, 2, 2) for comp in range(3)])
+    rows, cols, vals = [], [], []
+    for p, C in stiffness.items():
+        if not np.any(C):
+            continue
+        ke = B.T @ C @ B
+        d = dofs[:, phases.ravel() == p]
+        rows.append(np.repeat(d[:, None, :], 24, axis=1).ravel())
+        cols.append(np.repeat(d[None, :, :], 24, axis=0).ravel())
+        vals.append(np.repeat(ke[:, :, None], d.shape[1], axis=2).ravel())
+    return sp.coo_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                         shape=(3 * n, 3 * n)).tocsr()
+
+
+def prolongation(N, f, hourglass):
+    def one(n):
+        i = np.arange(n)
+        ic, t = i // f, (i % f) / f
+        return sp.coo_matrix((np.concatenate([1 - t, t]), (np.concatenate([i, i]),
+                                                           np.concatenate([ic, (ic + 1) % (n // f)]))),
+                             shape=(n, n // f)).tocsr()
+    P = sp.kron(sp.kron(sp.kron(one(N[0]), one(N[1])), one(N[2])), sp.identity(3)).tocsr()
+    if hourglass:
+        i, j, k = np.meshgrid(*[np.arange(n) for n in N], indexing="ij")
+        signs = [(-1.0) ** (i + j), (-1.0) ** (j + k), (-1.0) ** (i + k), (-1.0) ** (i + j + k)]
+        P = sp.hstack([P] + [sp.diags(np.repeat(s.ravel(), 3)) @ P for s in signs]).tocsr()
+    return P
+
+
+def two_grid(problem, K, f, hourglass):
+    N = problem.shape
+    P = prolongation(N, f, hourglass)
+    Kc = (P.T @ K @ P).tocsc()
+    Kc = Kc + 1e-9 * abs(Kc.diagonal()).max() * sp.identity(Kc.shape[0])  # the rigid translations
+    lu = spl.splu(Kc)
+    flat = lambda u: u.transpose(1, 2, 3, 0).ravel()  # noqa: E731
+    unflat = lambda v: v.reshape(N + (3,)).transpose(3, 0, 1, 2)  # noqa: E731
+    Q = lambda r: unflat(P @ lu.solve(P.T @ flat(r)))  # noqa: E731
+    Kx = lambda u: unflat(K @ flat(u))  # noqa: E731
+
+    def precondition(r):
+        z = problem.green(r - Kx(Q(r)))
+        return z - Q(Kx(z)) + Q(r)
+    return precondition
+
+
+def jacobi_scaling(problem, K, stiffness):
+    K_I = assemble(problem.phases, {p: np.eye(6) for p in stiffness})
+    dK, dI = K.diagonal(), K_I.diagonal()
+    S = np.where(dK > 0, np.sqrt(dI / np.where(dK > 0, dK, 1.0)), 0.0)
+    return S.reshape(problem.shape + (3,)).transpose(3, 0, 1, 2)
+
+
+def green_reference(problem, C0):
+    """K_0⁻¹ r for K_0 = Bᵀ C_0 B (3×3 blocks per frequency), by numpy FFTs."""
+    N = problem.shape
+    K = [problem.ws.K0[:, None, None] * problem.ws.C1[None, :, None] * problem.ws.C2[None, None, :],
+         problem.ws.C0[:, None, None] * problem.ws.K1[None, :, None] * problem.ws.C2[None, None, :],
+         problem.ws.C0[:, None, None] * problem.ws.C1[None, :, None] * problem.ws.K2[None, None, :]]
+    Bm = np.zeros((6, 3) + K[0].shape)
+    for I, (a, d) in enumerate(PAIRS):
+        if a == d:
+            Bm[I, a] = K[a]
+        else:
+            Bm[I, d] += K[a] / np.sqrt(2)
+            Bm[I, a] += K[d] / np.sqrt(2)
+    A = np.moveaxis(np.einsum("ia...,ij,jb...->ab...", Bm, C0, Bm), (0, 1), (-2, -1))
+    zero = (K[0] ** 2 + K[1] ** 2 + K[2] ** 2) <= problem.ws.kmin
+    A[zero] = np.eye(3)
+    Ainv = np.linalg.inv(A)
+    Ainv[zero] = 0.0
+    Ainv = np.moveaxis(Ainv, (-2, -1), (0, 1))
+
+    def precondition(r):
+        rh = np.fft.rfftn(r, axes=(1, 2, 3))
+        return np.fft.irfftn(np.einsum("ab...,b...->a...", Ainv, rh), s=N, axes=(1, 2, 3))
+    return precondition
+
+
+def main(args):
+    from meshes.foam import VoronoiFoam
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    phases = VoronoiFoam(args.cells, args.density, args.gamma, seed=args.seed).voxelize(args.n).astype(np.int8)
+    solid = isotropic_voigt(1.0, 0.3)
+    stiffness = {0: np.zeros((6, 6)), 1: voigt_to_mandel(solid)}
+    problem = Problem(phases, stiffness)
+    K = assemble(phases, stiffness)
+    S = jacobi_scaling(problem, K, stiffness)
+    C_hom = homogenize_fft(phases, [0 * solid, solid], tol=1e-6, threads=1, maxiter=5000).C
+    methods = {"green": problem.green,
+               "green-jacobi": lambda r: S * problem.green(S * r),
+               "green-hom": green_reference(problem, voigt_to_mandel(C_hom))}
+    for f in args.coarse:
+        methods[f"two-grid-{f}"] = two_grid(problem, K, f, False)
+        methods[f"two-grid-hg-{f}"] = two_grid(problem, K, f, True)
+    rows = []
+    for name, precondition in methods.items():
+        for case in args.cases:
+            E = np.zeros(6)
+            E[case] = 1.0
+            t0 = time.process_time()
+            it, mean, green_residual, coefficients = pcg(problem, E, args.tol, args.maxiter, precondition)
+            rows.append({"N": args.n, "gamma": args.gamma, "preconditioner": name, "case": case, "iterations": it,
+                         "converged": it < args.maxiter, "green_residual": green_residual,
+                         "C_JJ": mean[case], "cpu_s": time.process_time() - t0})
+            print(" ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in rows[-1].items()),
+                  flush=True)
+            if args.ritz and name == "green":
+                smallest = np.array2string(ritz_values(coefficients)[:8], precision=2)
+                print(f"  smallest Ritz values of K_I⁻¹K: {smallest}")
+    with open(args.out / "bench_fft_preconditioners.csv", "w", newline="") as fh:
+        writer = csv.DictWriter(fh, list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    print(f"written {args.out / 'bench_fft_preconditioners.csv'}")
+
+
+if __name__ == "__main__":
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--out", type=Path, default=Path("out/bench"))
+    p.add_argument("--n", type=int, default=32)
+    p.add_argument("--gamma", type=float, default=1.0)
+    p.add_argument("--cells", type=int, default=20)
+    p.add_argument("--density", type=float, default=0.18)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--cases", type=int, nargs="+", default=[0, 3])
+    p.add_argument("--coarse", type=int, nargs="*", default=[4, 2], help="coarsening factors of the two-grid rows")
+    p.add_argument("--tol", type=float, default=1e-4)
+    p.add_argument("--maxiter", type=int, default=2000)
+    p.add_argument("--ritz", action="store_true")
+    main(p.parse_args())
