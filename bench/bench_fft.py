@@ -9,9 +9,21 @@
 2. The distributed solve (``homogenize_fft(comm=...)``, ``pcg``) of one foam (``--mpi-size``, default 128,
    gamma 1) under ``mpirun -n K`` for K in ``--ranks`` (default 1 2): wall time, iterations, time per
    iteration, work arrays and peak RSS of every rank, C against the serial ``pcg`` row. Skipped with
-   ``--ranks`` empty.
+   ``--ranks`` empty. With ``--mpi-maxiter M`` only load case 1 runs, for M iterations (not converged: a
+   measurement of memory and time per iteration at sizes whose full solve would take too long).
 3. ``basic`` vs ``cg`` (``spectral`` and ``rotated``) and ``pcg`` on a finite-contrast image: a stiff spherical
    inclusion (contrast ``--contrast``, default 100) at ``--contrast-n`` voxels per side.
+
+4. With ``--sweep N``: what regenerating the shipped foam table (homogenization.tables: 8 densities × 4 gammas ×
+   3 seeds, its cells and tol) at resolution N would cost with ``pcg``. A subset of its samples (``--sweep-samples``,
+   default densities 0.09, 0.18, 0.34 × gamma 1, 0.1 × seed 0) is homogenized at N; their iterations, divided by
+   the iterations the same samples took in the shipped table (``foam_table_samples.csv``, at its own resolution),
+   scale the shipped table's total iterations, and the measured CPU time per iteration turns that into hours
+   (one core; the sweep spreads samples over MPI ranks, so K cores divide it by about K).
+
+5. With ``--kernels N``: the CPU time (``time.process_time``, minimum of 15 calls, one thread) of each pass of
+   one iteration of ``cg`` and of ``pcg`` on the gamma-1 foam at N, and their sum per iteration: the cost model
+   behind the rows above, measured in a way that other jobs on a shared machine do not inflate.
 
 Each serial case runs in a fresh process so that its peak RSS (``getrusage``) is its own; every run uses
 ``--threads`` threads (default 1). Prints a table and writes ``DIR/bench_fft.csv``.
@@ -131,7 +143,8 @@ def mpi_child(args):
     del image
     cpu = time.process_time()
     r = homogenize_fft(local, [0 * SOLID, SOLID], tol=args.tol, threads=args.threads, comm=comm, slab=True,
-                       raise_on_failure=False)
+                       raise_on_failure=False, maxiter=args.mpi_maxiter,
+                       macro_strains=np.eye(6)[:1] if args.mpi_maxiter else None)
     cpu = time.process_time() - cpu
     if comm.Get_rank() == 0:
         out = row(f"foam d={args.density} g={args.mpi_gamma} (distributed)", shape[0], r, cpu, comm.Get_size())
@@ -146,6 +159,8 @@ def distributed(args, ranks):
         command = ["mpirun", "-n", str(k), sys.executable, "-m", "mpi4py", __file__, "--mpi-child", target,
                    "--mpi-size", str(args.mpi_size), "--mpi-gamma", str(args.mpi_gamma), "--seed", str(args.seed),
                    "--tol", str(args.tol), "--threads", str(args.threads)]
+        if args.mpi_maxiter:
+            command += ["--mpi-maxiter", str(args.mpi_maxiter)]
         env = dict(os.environ, OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
                    OMPI_MCA_btl_vader_single_copy_mechanism="none", OMPI_MCA_rmaps_base_oversubscribe="1")
         done = subprocess.run(command, env=env, capture_output=True, text=True)
@@ -184,6 +199,9 @@ def main(args):
             if serial is not None:
                 r["dC_vs_cg"] = f"vs serial pcg {relative_gap(r['_C'], serial['_C']):.1e}"
             rows.append(r)
+    if args.sweep:
+        sweep_rows, estimate = sweep_estimate(args)
+        rows += sweep_rows
     inclusion = sphere(args.contrast_n, 0.3)
     stiff = [SOLID, args.contrast * SOLID]
     for scheme, discretization in (("cg", "rotated"), ("pcg", "rotated"), ("basic", "rotated"), ("cg", "spectral"),
@@ -196,7 +214,91 @@ def main(args):
         writer.writeheader()
         writer.writerows(rows)
     print("\n" + "\n".join(table(rows)))
+    if args.sweep:
+        print(f"\ntable sweep at N={estimate['sweep_N']} with pcg: ≈ {estimate['iterations']:.0f} iterations, "
+              f"{estimate['cpu_ms_per_iteration']:.1f} ms CPU each, ≈ {estimate['cpu_hours']:.1f} CPU-hours")
     print(f"\nwritten {out / 'bench_fft.csv'}")
+
+
+def sweep_estimate(args):
+    """Section 4: the cost of the shipped table's sweep at resolution ``args.sweep`` (see the module docstring)."""
+    import csv as _csv
+
+    from homogenization import tables
+
+    shipped = list(_csv.DictReader(open(Path(tables.__file__).parent / "data" / "foam_table_samples.csv")))
+    cells, tol = int(shipped[0]["n_cells"]), float(shipped[0]["tol"])
+    rows, ratios, cpu, its = [], [], 0.0, 0
+    for density, gamma in args.sweep_samples:
+        old = next(r for r in shipped if float(r["density"]) == density and float(r["gamma"]) == gamma
+                   and int(r["seed"]) == 0)
+        r = in_child(f"table sample d={density} g={gamma}", foam_image(gamma, args.sweep, cells, 0, density),
+                     [0 * SOLID, SOLID], "pcg", "rotated", tol, args.threads)
+        r["dC_vs_cg"] = f"table N={old['resolution']}: {old['iterations']} it"
+        rows.append(r)
+        print(format_row(r), flush=True)
+        ratios.append(r["total_iterations"] / int(old["iterations"]))
+        cpu += r["cpu_s"]
+        its += r["total_iterations"]
+    total = sum(int(r["iterations"]) for r in shipped) * float(np.mean(ratios))
+    hours = total * cpu / its / 3600
+    print(f"\nsweep at N={args.sweep}: {len(shipped)} samples, {cells} cells, tol {tol:g}; iterations "
+          f"{np.mean(ratios):.2f}× the shipped table's (N={shipped[0]['resolution']}, {len(ratios)} samples), "
+          f"≈ {total:.0f} iterations × {1e3 * cpu / its:.1f} ms CPU ≈ {hours:.1f} CPU-hours with pcg")
+    return rows, {"sweep_N": args.sweep, "iterations": total, "cpu_ms_per_iteration": 1e3 * cpu / its,
+                  "cpu_hours": hours}
+
+
+def _cpu_ms(f, k=15):
+    """Minimum CPU time of ``k`` calls of ``f``, in ms."""
+    best = np.inf
+    for _ in range(k):
+        t0 = time.process_time()
+        f()
+        best = min(best, time.process_time() - t0)
+    return 1e3 * best
+
+
+def _passes(scheme, image):
+    """CPU ms of each pass of one iteration of ``scheme`` on ``image``, and of its FFTs."""
+    from homogenization.fft import _check_inputs, _make_workspace
+
+    run = _check_inputs(image, [0 * SOLID, SOLID], scheme=scheme, discretization="rotated", box=None, tol=1e-4,
+                        maxiter=10, threads=1, macro_strains=None, checkpoints=(), return_fields=False)
+    ws = _make_workspace(run)
+    rng = np.random.default_rng(0)
+    try:
+        if scheme == "cg":
+            r, p = ws.vectors[0], ws.vectors[1]
+            r[...], p[...] = rng.random(r.shape), rng.random(p.shape)
+            parts = {"constitutive (+ p update, <p,C:p>)": _cpu_ms(lambda: ws.constitutive(ws.real, p, update=(r, .5))),
+                     "FFT forward (6 comp.)": _cpu_ms(ws.forward), "Green kernel": _cpu_ms(lambda: ws.green(0.5)),
+                     "FFT backward (6 comp.)": _cpu_ms(ws.backward),
+                     "residual update + norm": _cpu_ms(lambda: ws.axpy(np.ones(6), ws.real, r, norm=True))}
+            return parts, parts["FFT forward (6 comp.)"] + parts["FFT backward (6 comp.)"]
+        ws.p[...], ws.r[...] = rng.random(ws.p.shape), rng.random(ws.r.shape)
+        forward = _cpu_ms(ws._forward)
+        parts = {"stencil K p (+ <p,Kp>, <C B p>)": _cpu_ms(lambda: ws.apply(True, None)),
+                 "residual update": _cpu_ms(lambda: ws.axpby(-0.1, ws.q, 1.0, ws.r)),
+                 "FFT pair + Green kernel (K_I^-1, r.z)": _cpu_ms(ws.precondition),
+                 "direction update": _cpu_ms(lambda: ws.axpby(1.0, ws.q, 0.5, ws.p, y_ghost=1))}
+        return parts, 2 * forward
+    finally:
+        ws.close()
+
+
+def kernel_times(args):
+    """Section 5: CPU time of every pass of one cg and one pcg iteration (minimum of 15 calls)."""
+    image = foam_image(1.0, args.kernels, args.cells, args.seed, args.density)
+    totals = {}
+    for scheme in ("cg", "pcg"):
+        parts, fft = _passes(scheme, image)
+        totals[scheme] = sum(parts.values())
+        print(f"\n{scheme}, N={args.kernels}, CPU ms per pass (min of 15):")
+        for name, t in parts.items():
+            print(f"  {name:<40} {t:8.2f}")
+        print(f"  {'one iteration':<40} {totals[scheme]:8.2f}   (FFTs ≈ {fft:.2f}: ratio {totals[scheme] / fft:.2f})")
+    print(f"\npcg / cg CPU per iteration at N={args.kernels}: {totals['pcg'] / totals['cg']:.2f}")
 
 
 def _iterations(row):
@@ -230,7 +332,7 @@ def table(rows):
 if __name__ == "__main__":
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=Path, default=Path("out/bench"))
-    p.add_argument("--sizes", type=int, nargs="+", default=[64, 128], help="foam resolutions N")
+    p.add_argument("--sizes", type=int, nargs="*", default=[64, 128], help="foam resolutions N (none: skip)")
     p.add_argument("--schemes", nargs="+", default=["cg", "pcg"], choices=["cg", "pcg"])
     p.add_argument("--cells", type=int, default=20)
     p.add_argument("--density", type=float, default=0.18)
@@ -240,12 +342,22 @@ if __name__ == "__main__":
     p.add_argument("--ranks", type=int, nargs="*", default=[1, 2], help="MPI rank counts of the distributed runs")
     p.add_argument("--mpi-size", type=int, default=128, help="N of the distributed foam")
     p.add_argument("--mpi-gamma", type=float, default=1.0, help="gamma of the distributed foam")
+    p.add_argument("--mpi-maxiter", type=int, default=None,
+                   help="distributed runs: stop after this many iterations of one load case (memory/time per "
+                        "iteration at large N without the full solve)")
     p.add_argument("--mpi-child", default=None, help=argparse.SUPPRESS)
     p.add_argument("--contrast", type=float, default=100.0, help="stiffness contrast of the inclusion case")
     p.add_argument("--contrast-n", type=int, default=32, help="voxels per side of the inclusion case")
     p.add_argument("--tol", type=float, default=1e-4)
+    p.add_argument("--sweep", type=int, default=0, help="estimate the shipped table's sweep at this resolution")
+    p.add_argument("--kernels", type=int, default=0, help="only time the passes of one iteration at this N")
+    p.add_argument("--sweep-samples", type=lambda t: tuple(map(float, t.split(","))), nargs="+",
+                   default=[(0.09, 1.0), (0.18, 1.0), (0.34, 1.0), (0.09, 0.1), (0.18, 0.1), (0.34, 0.1)],
+                   help="density,gamma pairs of the sweep estimate (seed 0)")
     a = p.parse_args()
     if a.mpi_child:
         mpi_child(a)
+    elif a.kernels:
+        kernel_times(a)
     else:
         main(a)
