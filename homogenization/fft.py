@@ -95,6 +95,7 @@ import numpy as np
 import pyfftw
 
 from foambase.errors import InputError, NotConvergedError
+from foambase.mpi import on_every_rank
 from foambase.threads import cpu_count
 from homogenization import _native, _nodal
 from homogenization.result import HomogenizationResult
@@ -761,8 +762,9 @@ def homogenize_fft(
     if comm is None:
         run = _check_inputs(phases, materials, **settings)
     else:
-        run = _collective(comm, lambda: _check_inputs_distributed(phases, materials, comm, slab, **settings))
-    ws = _collective(comm, lambda: _make_workspace(run))
+        run = _collective(comm, lambda: _check_inputs_distributed(phases, materials, comm, slab, **settings),
+                          "checking the inputs")
+    ws = _collective(comm, lambda: _make_workspace(run), "setting up the FFT work arrays")
     logger.info("FFT homogenization: %s/%s on %s, %d threads, %.1f MB of work arrays%s, plan %.2f s",
                 run.scheme, run.discretization, run.shape, run.threads, ws.nbytes / 1e6,
                 "" if comm is None else f" per rank ({comm.Get_size()} ranks)", ws.plan_s)
@@ -796,22 +798,15 @@ def slab_planes(n1: int, comm, rank: int | None = None) -> tuple[int, int]:
     return start, start + q + (1 if rank < r else 0)
 
 
-def _collective(comm, action: Callable):
-    """Run ``action()`` on every rank; if it raises a ValueError on any rank, raise the first one on all ranks.
+def _collective(comm, action: Callable, what: str):
+    """Run ``action()`` on every rank; if it fails on any rank, raise the lowest failing rank's error on all ranks.
 
-    Input errors are thus raised everywhere, before any collective work, instead of leaving the other ranks
-    waiting in a collective call.
+    Input errors are thus raised everywhere (as :class:`InputError`), before any collective work, instead of
+    leaving the other ranks waiting in a collective call (:func:`foambase.mpi.on_every_rank`).
     """
     if comm is None:
         return action()
-    try:
-        out, error = action(), None
-    except ValueError as exc:
-        out, error = None, f"{exc}"
-    failed = [e for e in comm.allgather(error) if e is not None]
-    if failed:
-        raise ValueError(failed[0])
-    return out
+    return on_every_rank(comm, action, what)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -912,19 +907,18 @@ def _check_inputs_distributed(phases, materials, comm, slab, **settings) -> _Run
     scheme, discretization = settings["scheme"], settings["discretization"]
     # 1. checks of this rank's own arguments, gathered before any other collective call (a rank that raised here
     #    alone would leave the others waiting in the next one)
-    error = None
-    try:
+    def own():
         if (scheme or "pcg") != "pcg" or discretization != "rotated":
-            raise ValueError(f"distributed mode (comm with {size} ranks) runs scheme='pcg', "
+            raise InputError(f"distributed mode (comm with {size} ranks) runs scheme='pcg', "
                              f"discretization='rotated'; got scheme={scheme!r}, discretization={discretization!r}")
-        phases = np.asarray(phases)
-        if not (slab and phases.ndim == 3 and phases.shape[0] == 0):  # an empty slab: too many ranks (below)
-            phases = _check_phases(phases)
-    except ValueError as exc:
-        error = str(exc)
-    failed = [(rank, e) for rank, e in enumerate(comm.allgather(error)) if e is not None]
-    if failed:
-        raise ValueError(f"{failed[0][1]} (rank {failed[0][0]})")
+        image = np.asarray(phases)
+        if slab and image.ndim == 3 and image.shape[0] == 0:  # an empty slab: too many ranks (below)
+            return image
+        try:
+            return _check_phases(image)
+        except InputError as exc:
+            raise InputError(f"{exc} (rank {comm.Get_rank()})") from exc
+    phases = on_every_rank(comm, own, "checking the phase image")
     # 2. global checks: every rank reaches the same verdict
     settings = dict(settings, scheme="pcg")
     if settings["threads"] is None:  # the ranks on one node share its CPUs
@@ -934,22 +928,22 @@ def _check_inputs_distributed(phases, materials, comm, slab, **settings) -> _Run
     shapes = comm.allgather(tuple(int(n) for n in phases.shape))
     if slab:
         if any(s[1:] != shapes[0][1:] for s in shapes):
-            raise ValueError(f"slab=True: the ranks' slabs must share N2, N3; got shapes {shapes}")
+            raise InputError(f"slab=True: the ranks' slabs must share N2, N3; got shapes {shapes}")
         shape = (sum(s[0] for s in shapes),) + tuple(shapes[0][1:])
     else:
         if any(s != shapes[0] for s in shapes):
-            raise ValueError(f"every rank must pass the same full image (or use slab=True); got shapes {shapes}")
+            raise InputError(f"every rank must pass the same full image (or use slab=True); got shapes {shapes}")
         shape = tuple(shapes[0])
     most = min(shape[0], shape[2] // 2 + 1)
     if size > most:
-        raise ValueError(f"distributed mode needs at most min(N1, N3//2 + 1) = {most} ranks for an image of shape "
+        raise InputError(f"distributed mode needs at most min(N1, N3//2 + 1) = {most} ranks for an image of shape "
                          f"{shape} (one plane per rank in physical space along axis 0, in Fourier space along axis "
                          f"2); got {size} ranks")
     i0, i1 = slab_planes(shape[0], comm)
     if slab:
         expected = [int(np.diff(slab_planes(shape[0], comm, r))[0]) for r in range(size)]
         if [s[0] for s in shapes] != expected:
-            raise ValueError(f"slab=True: rank r must pass planes slab_planes(N1, comm) of the global image, i.e. "
+            raise InputError(f"slab=True: rank r must pass planes slab_planes(N1, comm) of the global image, i.e. "
                              f"{expected} planes on ranks 0..{size - 1}; got {[s[0] for s in shapes]}")
         local = phases
     else:

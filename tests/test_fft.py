@@ -174,7 +174,7 @@ def test_void_phase_cg_converges_and_basic_refuses():
     eig = np.linalg.eigvalsh(voigt_to_mandel(r.C))
     assert 0 < eig.min() and eig.max() < np.linalg.eigvalsh(voigt_to_mandel(C_SOFT)).max()
     assert r.C[0, 0] < (1 - img.mean()) * C_SOFT[0, 0]  # below the Voigt bound
-    with pytest.raises(ValueError, match="basic.*cannot handle.*void"):
+    with pytest.raises(InputError, match="basic.*cannot handle.*void"):
         homogenize_fft(img, materials, scheme="basic")
 
 
@@ -342,7 +342,7 @@ def test_wave_directions_zero_where_g_vanishes():
     (np.zeros((4, 4, 4), int), [C_SOFT], {"checkpoints": [1.0]}, r"checkpoints must satisfy.*\[1.0\]"),
 ])
 def test_bad_inputs(phases, materials, kwargs, match):
-    with pytest.raises(ValueError, match=match):
+    with pytest.raises(InputError, match=match):
         homogenize_fft(phases, materials, **kwargs)
 
 
@@ -524,22 +524,22 @@ def test_distributed_bad_input_fails_on_every_rank():
     if comm.Get_size() == 1:
         pytest.skip("needs mpirun -n 2 or more")
     size = comm.Get_size()
-    with pytest.raises(ValueError, match=r"at most min\(N1, N3//2 \+ 1\) = 1 ranks"):
+    with pytest.raises(InputError, match=r"at most min\(N1, N3//2 \+ 1\) = 1 ranks"):
         homogenize_fft(np.zeros((1, 8, 8), dtype=int), [C_SOFT], comm=comm)
-    with pytest.raises(ValueError, match=r"at most min\(N1, N3//2 \+ 1\) = 1 ranks"):
+    with pytest.raises(InputError, match=r"at most min\(N1, N3//2 \+ 1\) = 1 ranks"):
         homogenize_fft(np.zeros((8, 8, 1), dtype=int), [C_SOFT], comm=comm)
-    with pytest.raises(ValueError, match=rf"at most min\(N1, N3//2 \+ 1\) = {size - 1} ranks"):  # an empty slab
+    with pytest.raises(InputError, match=rf"at most min\(N1, N3//2 \+ 1\) = {size - 1} ranks"):  # an empty slab
         homogenize_fft(np.zeros((int(comm.Get_rank() < size - 1), 8, 8), dtype=int), [C_SOFT], comm=comm, slab=True)
-    with pytest.raises(ValueError, match="slab_planes"):  # the last rank passes one plane too many
+    with pytest.raises(InputError, match="slab_planes"):  # the last rank passes one plane too many
         homogenize_fft(np.zeros((4 + (comm.Get_rank() == size - 1), 8, 8), dtype=int), [C_SOFT], comm=comm,
                        slab=True)
-    with pytest.raises(ValueError, match="same full image"):
+    with pytest.raises(InputError, match="same full image"):
         homogenize_fft(np.zeros((8 + comm.Get_rank(), 8, 8), dtype=int), [C_SOFT], comm=comm)
-    with pytest.raises(ValueError, match="runs scheme='pcg'"):
+    with pytest.raises(InputError, match="runs scheme='pcg'"):
         homogenize_fft(np.zeros((8, 8, 8), dtype=int), [C_SOFT], comm=comm, scheme="cg")
     bad = np.zeros((2 * size, 8, 8), dtype=int)
     bad[-1, 0, 0] = 3 if comm.Get_rank() == size - 1 else 0  # a phase without material, in the last slab only
-    with pytest.raises(ValueError, match=r"phase ids \[3\].*no material"):
+    with pytest.raises(InputError, match=r"phase ids \[3\].*no material"):
         homogenize_fft(bad, [C_SOFT], comm=comm)
 
 
