@@ -32,6 +32,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pyfftw
 
+from foambase.errors import ComputationError
 from homogenization import _native
 
 _SQRT2 = np.sqrt(2.0)
@@ -377,7 +378,9 @@ def solve_pcg(ws: NodalWorkspace, E: np.ndarray, tol: float, maxiter: int, repor
         pKp, stress_p = ws.apply(True, None)  # q = K p
         totals = ws.allsum(np.concatenate([[pKp], stress_p]))
         pKp = float(totals[0])
-        if not (np.isfinite(pKp) and pKp > 0.0):
+        if not np.isfinite(pKp):
+            raise ComputationError(f"PCG: <p, K p> = {pKp} at iteration {it}: the fields overflowed or hold NaN")
+        if pKp <= 0.0:
             return mean, history, False, f"CG breakdown at iteration {it}: <p, K p> = {pKp:.3g}"
         alpha = rz / pKp
         mean = mean + alpha * totals[1:] / ws.size

@@ -167,13 +167,15 @@ def _homogenize_check(parser: argparse.ArgumentParser, args: argparse.Namespace)
     need(math.isfinite(args.nu_solid) and -1.0 < args.nu_solid < 0.5,
          f"--nu-solid must be in (-1, 0.5), got {args.nu_solid}")
     import numpy as np
-    with np.errstate(over="ignore", under="ignore", invalid="ignore"):  # the solver works with squared norms
-        stiffness = isotropic_voigt(args.E_solid, args.nu_solid)
-        squared = float(np.sum(stiffness**2))
-    need(math.isfinite(squared) and squared > np.finfo(float).tiny,
-         f"--E-solid {args.E_solid:g}: the solver's squared norms of the solid's stiffness "
-         f"{'overflow' if not math.isfinite(squared) else 'underflow'} double precision (valid: about 1e-150 to "
-         "1e150); give the modulus in other units (the normalised constants, C / E_solid, do not depend on them)")
+    with np.errstate(over="ignore", invalid="ignore"):
+        largest = float(np.abs(isotropic_voigt(args.E_solid, args.nu_solid)).max())
+    per_unit = float(np.abs(isotropic_voigt(1.0, args.nu_solid)).max())
+    fp = np.finfo(float)
+    need(math.isfinite(largest) and largest >= fp.tiny,
+         f"--E-solid {args.E_solid:g}: the solid's largest stiffness entry {largest:.3g} "
+         f"{'overflows' if not math.isfinite(largest) else 'is a subnormal number in'} double precision; valid at "
+         f"--nu-solid {args.nu_solid:g}: --E-solid from {fp.tiny / per_unit:.3g} to {fp.max / per_unit:.3g} (the "
+         "normalised constants, C / E_solid, do not depend on the unit)")
     need(math.isfinite(args.tol) and 0.0 < args.tol < 1.0, f"--tol must be in (0, 1), got {args.tol}")
     need(args.maxiter is None or args.maxiter >= 1, f"--maxiter must be >= 1, got {args.maxiter}")
     need(args.threads >= 1, f"--threads must be >= 1, got {args.threads}")

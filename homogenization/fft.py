@@ -94,7 +94,7 @@ from dataclasses import dataclass
 import numpy as np
 import pyfftw
 
-from foambase.errors import InputError, NotConvergedError
+from foambase.errors import ComputationError, InputError, NotConvergedError
 from foambase.mpi import on_every_rank
 from foambase.threads import cpu_count
 from homogenization import _native, _nodal
@@ -513,7 +513,18 @@ def _check_phases(phases) -> np.ndarray:
     return phases
 
 
-def _check_materials(materials, ids) -> dict[int, np.ndarray]:
+def _binary_exponent(x: float) -> int:
+    """``e`` with ``2**(e-1) <= x < 2**e`` (``x > 0``): multiplying by ``2**(1-e)`` brings x into [1, 2) exactly."""
+    return int(np.frexp(x)[1])
+
+
+def _check_materials(materials, ids) -> tuple[dict[int, np.ndarray], int]:
+    """The phases' stiffnesses scaled by ``2**k`` so that the largest entry lies in [1, 2), and ``k``.
+
+    The solver works on the scaled stiffnesses: its squared norms neither overflow nor underflow whatever the
+    unit of the moduli (1e200 or 1e-170), and a power of two changes no digit, so ``C`` is the same (bit for bit
+    when no intermediate is subnormal) as for the stiffness in any other unit, times that unit.
+    """
     if isinstance(materials, Mapping):
         available = {int(p): materials[p] for p in materials}
     else:
@@ -522,14 +533,31 @@ def _check_materials(materials, ids) -> dict[int, np.ndarray]:
     if missing:
         raise InputError(f"phase ids {missing} occur in the image but have no material "
                          f"(materials given for ids {sorted(available)})")
-    out = {}
+    raw = {}
     for p in map(int, ids):
         C = np.asarray(available[p], dtype=float)
         if C.shape != (6, 6):
             raise InputError(f"materials[{p}] must be a 6×6 Voigt stiffness, got shape {C.shape}")
-        check_stiffness(C, allow_zero=True, name=f"materials[{p}]")
+        if not np.all(np.isfinite(C)):
+            raise InputError(f"materials[{p}] has non-finite entries: {C[~np.isfinite(C)][:3].tolist()}")
+        raw[p] = C
+    largest = max(float(np.abs(C).max()) for C in raw.values())
+    if largest == 0.0:
+        raise InputError(f"every phase in the image ({sorted(raw)}) has zero stiffness (void): nothing carries "
+                         "load; the image needs a solid phase with a positive definite stiffness")
+    if largest < np.finfo(float).tiny:
+        raise InputError(f"materials: the largest stiffness entry {largest:.3g} is a subnormal double (below "
+                         f"{np.finfo(float).tiny:.3g}) and has lost its precision; give the moduli in another unit")
+    k = 1 - _binary_exponent(largest)
+    out = {}
+    for p, C in raw.items():
+        C = np.ldexp(C, k)
+        try:
+            check_stiffness(C, allow_zero=True, name=f"materials[{p}]")
+        except InputError as exc:
+            raise type(exc)(f"{exc}{'' if k == 0 else f' (values scaled by 2**{k})'}") from exc
         out[p] = 0.5 * (C + C.T)
-    return out
+    return out, k
 
 
 def _check_box(box) -> tuple[float, float, float]:
@@ -555,6 +583,10 @@ def _check_macro_strains(macro_strains) -> np.ndarray:
         raise InputError(f"macro_strains must be (n_cases, 6) Voigt strains, got shape {np.shape(macro_strains)}")
     if not np.all(np.isfinite(E)):
         raise InputError("macro_strains must be finite")
+    zero = [i for i, row in enumerate(E) if not np.any(row)]
+    if zero:
+        raise InputError(f"macro_strains[{zero[0]}] is zero (load case(s) {zero} of {E.shape[0]}): a zero macroscopic "
+                         "strain has no response to homogenize; every load case needs a non-zero strain")
     return E
 
 
@@ -608,7 +640,9 @@ def _solve_cg(ws: _Workspace, E: np.ndarray, tol: float, maxiter: int, report: C
     beta = 0.0  # p still holds E: the first direction is p = r + 0·p = r
     for it in range(1, maxiter + 1):
         pAp = ws.constitutive(work, p, update=(r, beta))  # p ← r + βp; ⟨p, G[C:p]⟩ = ⟨p, C:p⟩ since p = G[p]
-        if not (np.isfinite(pAp) and pAp > 0.0):
+        if not np.isfinite(pAp):
+            raise ComputationError(f"CG: <p, C:p> = {pAp} at iteration {it}: the fields overflowed or hold NaN")
+        if pAp <= 0.0:
             return mean, history, False, f"CG breakdown at iteration {it}: <p, C:p> = {pAp:.3g}"
         ws.fft()
         mean_p = ws.mean_stress()
@@ -817,7 +851,7 @@ class _Run:
     """The checked inputs of one :func:`homogenize_fft` call (stiffnesses in Mandel form)."""
 
     phases: np.ndarray
-    stiffness: dict[int, np.ndarray]
+    stiffness: dict[int, np.ndarray]  #: Mandel, scaled by ``2**scale`` (largest entry in [1, 2) in Voigt)
     scheme: str
     discretization: str
     box: tuple[float, float, float]
@@ -832,6 +866,7 @@ class _Run:
     i0: int = 0  #: first plane of ``phases`` (distributed mode)
     counts: dict | None = None  #: voxels per phase id over the whole image
     comm: object = None  #: communicator of the distributed mode (None: serial)
+    scale: int = 0  #: the solver's stiffnesses are the given ones times ``2**scale``
 
     @property
     def keep_iterate(self) -> bool:
@@ -857,7 +892,7 @@ def _check_inputs(phases, materials, *, scheme, discretization, box, tol, maxite
                   checkpoints, return_fields) -> _Run:
     """Every argument checked (an InputError naming the bad value and what is valid) before any work."""
     phases = _check_phases(phases)
-    stiff = _check_materials(materials, np.unique(phases))
+    stiff, scale = _check_materials(materials, np.unique(phases))
     if scheme is None:
         scheme = "pcg" if discretization == "rotated" else "cg"
     if scheme not in SCHEMES:
@@ -889,7 +924,7 @@ def _check_inputs(phases, materials, *, scheme, discretization, box, tol, maxite
     ids, counts = np.unique(phases, return_counts=True)
     return _Run(phases=phases, stiffness=mandel, scheme=scheme, discretization=discretization, box=L, tol=tol,
                 maxiter=int(maxiter), threads=int(threads), strains=strains, marks=marks, reference=ref,
-                return_fields=bool(return_fields), shape=tuple(phases.shape),
+                return_fields=bool(return_fields), shape=tuple(phases.shape), scale=scale,
                 counts={int(p): int(c) for p, c in zip(ids, counts)})
 
 
@@ -983,7 +1018,7 @@ class _Checkpoints:
 
     def summary(self, strains: np.ndarray, setup_s: float) -> list[dict]:
         columns = [_stiffness_columns(strains, np.array([h[0] for h in hit])) for hit in self.hits]
-        return [{"tol": t, "C": 0.5 * (C + C.T), "iterations": [h[1] for h in hit],
+        return [{"tol": t, "C": 0.5 * C + 0.5 * C.T, "iterations": [h[1] for h in hit],
                  "wall_s": setup_s + sum(h[2] for h in hit), "converged": all(h[3] for h in hit)}
                 for t, C, hit in zip(self.marks, columns, self.hits)]
 
@@ -1007,14 +1042,25 @@ class _Case:
 
 def _solve_case(ws: _Workspace, run: _Run, case: int, E_voigt: np.ndarray, marks: _Checkpoints,
                 callback: Callable | None) -> _Case:
-    """Solve load case ``case`` (macroscopic Voigt strain ``E_voigt``) with the run's scheme."""
-    E = E_voigt / _MANDEL
+    """Solve load case ``case`` (macroscopic Voigt strain ``E_voigt``) with the run's scheme.
+
+    The scheme sees the strain scaled by a power of two (largest component in [1, 2)) and the scaled
+    stiffnesses (:func:`_check_materials`), so its norms stay far from overflow and underflow; ⟨σ⟩ and the fields
+    are scaled back exactly. A non-finite residual or ⟨σ⟩ raises :class:`ComputationError`.
+    """
+    k_strain = 1 - _binary_exponent(float(np.abs(E_voigt).max()))
+    k_stress = -(k_strain + run.scale)  # solver's ⟨σ⟩ × 2**k_stress = ⟨σ⟩ of the given materials and strain
+    E = np.ldexp(E_voigt, k_strain) / _MANDEL
     t0, f0 = time.perf_counter(), ws.fft_s
 
     def report(it, res, mean):
+        if not np.isfinite(res):
+            raise ComputationError(f"load case {case} (E = {E_voigt.tolist()}): the residual is {res} at "
+                                   f"iteration {it}: the fields overflowed or hold NaN")
         if callback is not None:
             callback(case, it, res)
-        marks.record(case, it, res, mean, t0)
+        with np.errstate(over="ignore"):  # an overflowing ⟨σ⟩ is reported at the end of the case
+            marks.record(case, it, res, np.ldexp(mean, k_stress), t0)
 
     if run.scheme == "cg":
         mean, history, ok, message = _solve_cg(ws, E, run.tol, run.maxiter, report, run.keep_iterate)
@@ -1024,10 +1070,18 @@ def _solve_case(ws: _Workspace, run: _Run, case: int, E_voigt: np.ndarray, marks
     else:
         mean, history, ok, message = _solve_basic(ws, E, run.tol, run.maxiter, report, run.reference)
     seconds, fft_seconds = time.perf_counter() - t0, ws.fft_s - f0
+    with np.errstate(over="ignore"):
+        mean = np.ldexp(mean, k_stress)
+    if not np.all(np.isfinite(mean)):
+        raise ComputationError(f"load case {case} (E = {E_voigt.tolist()}): the mean stress is not finite "
+                               f"({mean.tolist()}): it overflows double precision in these units")
     marks.finish(case, mean, len(history) - 1, t0)
     if not ok:
         message = f"load case {case} (E = {E_voigt.tolist()}): {message}; residual {history[-1]:.3g} > {run.tol:g}"
-    fields = _case_fields(ws, run, E) if run.return_fields else None
+    fields = None
+    if run.return_fields:
+        strain, stress = _case_fields(ws, run, E)
+        fields = (np.ldexp(strain, -k_strain), np.ldexp(stress, k_stress))
     return _Case(mean, history, ok, message, seconds, fft_seconds, fields)
 
 
@@ -1074,11 +1128,17 @@ def _assemble_result(run: _Run, cases: list[_Case], stats: dict, checkpoints: li
         info["peak_rss_bytes_per_rank"] = comm.allgather(info["peak_rss_bytes"])
     if run.reference is not None:
         ref = run.reference
-        info["reference_medium"] = {"lambda0": ref.lam, "mu0": ref.mu, "contraction_factor": ref.rate}
+        info["reference_medium"] = {"lambda0": float(np.ldexp(ref.lam, -run.scale)),
+                                    "mu0": float(np.ldexp(ref.mu, -run.scale)), "contraction_factor": ref.rate}
     fields = None
     if run.return_fields:
         fields = {"strain": np.array([c.fields[0] for c in cases]), "stress": np.array([c.fields[1] for c in cases])}
+    C_raw = _stiffness_columns(run.strains, mean_stress)
+    solved = np.isin(np.arange(6), [np.flatnonzero(E)[0] for E in run.strains if np.count_nonzero(E) == 1])
+    if not np.all(np.isfinite(C_raw[:, solved])):
+        raise ComputationError(f"the homogenized stiffness has non-finite entries (⟨σ⟩/E overflows double "
+                               f"precision): C = {np.array2string(C_raw, precision=4)}")
     return HomogenizationResult.from_columns(
-        _stiffness_columns(run.strains, mean_stress), method="fft", iterations=iterations,
+        C_raw, method="fft", iterations=iterations,
         residuals=[c.history for c in cases], wall_s=time.perf_counter() - t_start, converged=not failures,
         info=info, fields=fields)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -46,7 +46,7 @@ class HomogenizationResult:
         asym = float(np.abs(C_raw - C_raw.T).max() / scale) if scale > 0 else 0.0
         info = dict(kwargs.pop("info", {}) or {})
         info.setdefault("asymmetry", asym)
-        return cls(C=0.5 * (C_raw + C_raw.T), C_raw=C_raw, info=info, **kwargs)
+        return cls(C=0.5 * C_raw + 0.5 * C_raw.T, C_raw=C_raw, info=info, **kwargs)  # no overflow near 1e308
 
     @property
     def asymmetry(self) -> float:
@@ -55,15 +55,22 @@ class HomogenizationResult:
 
     def engineering_constants(self) -> dict[str, float]:
         """E1..E3, G23, G13, G12 and ν_ij of ``C`` (see :func:`homogenization.tensors.engineering_constants`)."""
-        return engineering_constants(self.C)
+        C, k = _unit_scaled(self.C)
+        return {name: float(np.ldexp(v, -k)) if name[0] in "EG" else v
+                for name, v in engineering_constants(C).items()}
 
     def ti_fit(self, axis=0) -> TransverseIsotropicFit:
         """Closest TI stiffness; the default l axis is x, the foam's distinct axis (docs/conventions.md)."""
-        return closest_transverse_isotropic(self.C, axis=axis)
+        C, k = _unit_scaled(self.C)
+        fit = closest_transverse_isotropic(C, axis=axis)
+        return replace(fit, E_t=float(np.ldexp(fit.E_t, -k)), E_l=float(np.ldexp(fit.E_l, -k)),
+                       G_l=float(np.ldexp(fit.G_l, -k)), C=np.ldexp(fit.C, -k))
 
     def isotropic_fit(self) -> IsotropicFit:
         """Closest isotropic stiffness."""
-        return closest_isotropic(self.C)
+        C, k = _unit_scaled(self.C)
+        fit = closest_isotropic(C)
+        return replace(fit, E=float(np.ldexp(fit.E, -k)), C=np.ldexp(fit.C, -k))
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary: C, engineering constants, fits, solver statistics (no local fields)."""
@@ -81,6 +88,19 @@ class HomogenizationResult:
             "converged": self.converged,
             "info": _jsonable(self.info),
         }
+
+
+def _unit_scaled(C: np.ndarray) -> tuple[np.ndarray, int]:
+    """``(C · 2**k, k)`` with the largest entry of ``C · 2**k`` in [1, 2).
+
+    The inverse and the fits (products of moduli) of a stiffness in any unit, 1e200 or 1e-170, then stay within
+    double precision; a power of two changes no digit.
+    """
+    largest = float(np.abs(C).max())
+    if not (np.isfinite(largest) and largest > 0.0):
+        return C, 0
+    k = 1 - int(np.frexp(largest)[1])
+    return np.ldexp(C, k), k
 
 
 def _jsonable(obj):

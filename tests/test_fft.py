@@ -340,10 +340,58 @@ def test_wave_directions_zero_where_g_vanishes():
     (np.zeros((4, 4, 4), int), [C_SOFT], {"macro_strains": np.ones((2, 3))}, r"\(n_cases, 6\)"),
     (np.zeros((4, 4, 4), int), [C_SOFT], {"tol": 1e-4, "checkpoints": [1e-6]}, r"tol = 0.0001 <= t < 1.*1e-06"),
     (np.zeros((4, 4, 4), int), [C_SOFT], {"checkpoints": [1.0]}, r"checkpoints must satisfy.*\[1.0\]"),
+    (np.zeros((4, 4, 4), int), [C_SOFT], {"macro_strains": np.zeros((2, 6))}, r"macro_strains\[0\] is zero.*\[0, 1\]"),
+    (np.zeros((4, 4, 4), int), [C_SOFT], {"macro_strains": np.eye(6)[[0, 0]] * [[1], [0]]},
+     r"macro_strains\[1\] is zero"),
+    (np.zeros((4, 4, 4), int), [np.zeros((6, 6))], {}, r"every phase in the image \(\[0\]\) has zero stiffness"),
+    (np.arange(8).reshape(2, 2, 2) % 2, [np.zeros((6, 6))] * 2, {"scheme": "cg"}, r"\(\[0, 1\]\) has zero stiffness"),
+    (np.zeros((4, 4, 4), int), [C_SOFT + np.inf], {}, r"materials\[0\] has non-finite entries"),
+    (np.zeros((4, 4, 4), int), [C_SOFT * 1e-310], {}, "subnormal"),
 ])
 def test_bad_inputs(phases, materials, kwargs, match):
     with pytest.raises(InputError, match=match):
         homogenize_fft(phases, materials, **kwargs)
+
+
+@pytest.mark.parametrize("scheme,void", [("pcg", True), ("cg", True), ("basic", False)])
+def test_c_scales_with_the_moduli_and_not_with_the_strain(scheme, void):
+    """C is linear in the phases' stiffnesses: C(λ C_p)/λ = C(C_p) for moduli in any unit, 1e200 or 1e-170 (their
+    squared norms overflow or underflow double precision: a solver that forms them stops at iteration 0 with the
+    Voigt bound); and C does not depend on the size of the macroscopic strains (1e-200 or 1e150)."""
+    img = sphere_image(10, 0.3)
+    materials = [TI, np.zeros((6, 6)) if void else isotropic_voigt(0.1, 0.3)]  # the sphere is the pore
+    kwargs = dict(scheme=scheme, tol=1e-8)
+    ref = homogenize_fft(img, materials, **kwargs)
+    assert sum(ref.iterations) > 30  # a real solve, so the scaled runs can fail to reproduce it
+    for lam in (1e200, 3.7e-170, 2.0**-300):
+        r = homogenize_fft(img, [lam * C for C in materials], **kwargs)
+        assert r.iterations == ref.iterations
+        assert rel(r.C / lam, ref.C) < 1e-12  # measured < 5e-14 (power of two: 0)
+    r = homogenize_fft(img, materials, macro_strains=np.diag([1e-200, 1e150, 3e-7, 1e-200, 1.0, 1e100]), **kwargs)
+    assert rel(r.C, ref.C) < 1e-12
+    assert np.all(ref.C != homogenize_fft(img, materials, scheme=scheme, tol=1e-8, maxiter=1,
+                                          raise_on_failure=False).C)  # the Voigt bound is not the answer
+
+
+def test_overflowing_stress_and_nan_residual_are_computation_errors(monkeypatch):
+    """Results that are not finite numbers are never returned, with or without raise_on_failure."""
+    from foambase.errors import ComputationError
+    from homogenization import _nodal
+
+    img = sphere_image(8, 0.3)
+    materials = [isotropic_voigt(1e308, 0.3), np.zeros((6, 6))]  # ⟨σ⟩ of a strain of 100 overflows
+    with pytest.raises(ComputationError, match="mean stress is not finite"):
+        homogenize_fft(img, materials, macro_strains=100 * np.eye(6)[:1], raise_on_failure=False)
+    calls = []
+    precondition = _nodal.NodalWorkspace.precondition
+
+    def poisoned(self):  # a NaN enters the fields at the third preconditioner call
+        out = precondition(self)
+        calls.append(1)
+        return out * np.nan if len(calls) == 3 else out
+    monkeypatch.setattr(_nodal.NodalWorkspace, "precondition", poisoned)
+    with pytest.raises(ComputationError, match=r"load case 0 .*residual is nan at iteration 2"):
+        homogenize_fft(img, [C_SOFT, np.zeros((6, 6))], scheme="pcg", raise_on_failure=False)
 
 
 def test_convergence_error_survives_pickling():

@@ -51,6 +51,22 @@ def test_image_to_json(image_file, tmp_path, capsys):
     assert "TI fit (l = x)" in capsys.readouterr().out
 
 
+@pytest.mark.parametrize("E_solid", ["1e200", "1e-170", "1.3e308", "2e-308"])
+def test_extreme_moduli_give_the_normalised_constants(image_file, tmp_path, E_solid):
+    """--E-solid in any unit the doubles hold: C / E_solid equals the run at E_solid = 1 (a solver that formed
+    squared norms of 1e200 stopped at iteration 0 and returned the Voigt bound, E1/E 0.197 instead of 0.029)."""
+    runs = {}
+    for E in ("1", E_solid):
+        out = tmp_path / f"{E}.json"
+        assert main(["--image", str(image_file), "--E-solid", E, "--threads", "1", "--out", str(out)]) == 0
+        runs[E] = json.loads(out.read_text())
+    C1, C = np.array(runs["1"]["C"]), np.array(runs[E_solid]["C"]) / float(E_solid)
+    assert runs[E_solid]["iterations"] == runs["1"]["iterations"] and min(runs["1"]["iterations"]) > 5
+    assert np.abs(C - C1).max() < 1e-12 * np.abs(C1).max()
+    e, e1 = runs[E_solid]["engineering_constants"], runs["1"]["engineering_constants"]
+    assert e["E1"] / float(E_solid) == pytest.approx(e1["E1"], rel=1e-12) and e["nu12"] == pytest.approx(e1["nu12"])
+
+
 def run_error(argv, capsys):
     """Exit status 2: argparse's usage errors exit, the command's checks return it."""
     try:
