@@ -185,7 +185,7 @@ def _homogenize_check(parser: argparse.ArgumentParser, args: argparse.Namespace)
              f"under mpirun with {comm.size} ranks homogenize distributes one RVE, which runs --scheme pcg with "
              f"--discretization rotated only; got --scheme {args.scheme} --discretization {args.discretization}")
     if comm is None or comm.rank == 0:
-        _warn_threads(args.threads, 1 if comm is None else comm.size)
+        _warn_threads(args.threads)  # per rank: under mpirun a rank's CPUs are those it is bound to
 
     def files():
         if args.out is not None:

@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 
 from homogenization.tensors import (
+    InadmissibleMaterialError,
     IsotropicFit,
     TransverseIsotropicFit,
     closest_isotropic,
@@ -56,8 +57,11 @@ class HomogenizationResult:
     def engineering_constants(self) -> dict[str, float]:
         """E1..E3, G23, G13, G12 and ν_ij of ``C`` (see :func:`homogenization.tensors.engineering_constants`)."""
         C, k = _unit_scaled(self.C)
-        return {name: float(np.ldexp(v, -k)) if name[0] in "EG" else v
-                for name, v in engineering_constants(C).items()}
+        try:
+            constants = engineering_constants(C)
+        except InadmissibleMaterialError as exc:  # its eigenvalues are those of the scaled C
+            raise InadmissibleMaterialError(f"{exc}{f' (eigenvalues of C × 2**{k})' if k else ''}") from exc
+        return {name: float(np.ldexp(v, -k)) if name[0] in "EG" else v for name, v in constants.items()}
 
     def ti_fit(self, axis=0) -> TransverseIsotropicFit:
         """Closest TI stiffness; the default l axis is x, the foam's distinct axis (docs/conventions.md)."""

@@ -170,3 +170,22 @@ def test_distributed_run_matches_serial(tmp_path):
     foam = foam_module.VoronoiFoam(n_cells=4, density=0.3, gamma=0.5, seed=2).voxelize(16)
     expected = homogenize_fft(foam.astype(np.int8), materials, tol=1e-4, threads=1).C  # the command's defaults
     assert np.abs(np.array(json.loads(out.read_text())["C"]) - expected).max() < 1e-10 * np.abs(expected).max()
+
+
+@pytest.mark.mpi
+def test_distributed_bad_arguments_stop_every_rank(tmp_path):
+    """Under mpirun the arguments and files are checked before any work and every rank returns exit status 2."""
+    from mpi4py import MPI
+
+    comm = MPI.COMM_WORLD
+    if comm.Get_size() == 1:
+        pytest.skip("needs mpirun -n 2 or more")
+    folder = Path(comm.bcast(str(tmp_path)))
+    foam = ["--density", "0.3", "--cells", "4", "--resolution", "16", "--threads", "1"]
+    assert main([*foam, "--scheme", "cg"]) == 2  # distributed mode runs pcg only
+    assert main(["--image", str(folder / "missing.npy")]) == 2  # checked on rank 0, known to all
+    assert main([*foam, "--out", str(folder)]) == 2  # a directory where a file is expected
+    assert main([*foam, "--density", "0.01", "--cells", "2", "--resolution", "8"]) == 1  # the solid does not
+    #                                                      percolate: C is not positive definite, on every rank
+    comm.Barrier()
+    assert sorted(p.name for p in folder.iterdir() if not p.name.endswith(".json")) == []
