@@ -55,6 +55,13 @@ vanishes to round-off (``‖G[C:E]‖ ≤ 1e3 ε_mach ‖C:E‖``, e.g. a homoge
 ``ε = E`` in zero iterations. Not reaching ``tol`` within ``maxiter`` raises :class:`FFTConvergenceError`
 (or, with ``raise_on_failure=False``, returns a result with ``converged=False``).
 
+Units: the solver works on the stiffnesses scaled by one power of two (largest entry in [1, 2)) and on each load
+case's strain scaled likewise, and scales ``⟨σ⟩`` and the fields back exactly; its squared norms therefore never
+overflow or underflow, and ``C`` of moduli in any unit (1e200, 1e-170) is that unit times ``C`` of the moduli in
+another (bit for bit when the ratio is a power of two). A zero load case, an image whose phases all have zero
+stiffness and non-finite materials are :class:`~foambase.errors.InputError`; a residual, ``⟨σ⟩`` or ``C`` that is
+not finite is a :class:`~foambase.errors.ComputationError`, never returned.
+
 With a zero-stiffness void CG needs hundreds of iterations on thin-strut foams. The slow modes are
 near-zero-energy hourglass patterns of the one-point-integrated voxels along the pore surfaces (smallest Ritz
 values of the Green-preconditioned operator ~1e-5 at N = 32 and 64): no Fourier-diagonal operator sees where the

@@ -566,6 +566,22 @@ def test_distributed_result_equals_serial(shape):
 
 
 @pytest.mark.mpi
+def test_distributed_moduli_in_any_unit():
+    """The distributed solve scales like the serial one: moduli of 1e-170 on the ranks give the serial C of the
+    moduli of 1, times 1e-170; a zero load case is refused on every rank."""
+    comm = world()
+    img = three_phase_image((9, 8, 8))
+    materials = [np.zeros((6, 6)), C_SOFT, TI]
+    kwargs = dict(tol=1e-10, threads=1, macro_strains=np.eye(6)[[0, 3]])
+    serial = homogenize_fft(img, materials, **kwargs)
+    r = homogenize_fft(img, [1e-170 * C for C in materials], comm=comm, **kwargs)
+    assert all(abs(a - b) <= 1 for a, b in zip(r.iterations, serial.iterations)) and min(r.iterations) > 10
+    assert rel(r.C_raw[:, [0, 3]] / 1e-170, serial.C_raw[:, [0, 3]]) < 1e-10
+    with pytest.raises(InputError, match=r"macro_strains\[1\] is zero"):
+        homogenize_fft(img, materials, comm=comm, macro_strains=np.eye(6)[[0]] * [[1], [0]])
+
+
+@pytest.mark.mpi
 def test_distributed_bad_input_fails_on_every_rank():
     """Errors are raised on every rank before any collective work (no rank is left waiting)."""
     comm = world()
