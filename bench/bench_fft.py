@@ -49,6 +49,7 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from foambase.files import atomic_open  # noqa: E402
 from homogenization.fft import homogenize_fft  # noqa: E402
 from homogenization.tensors import isotropic_voigt  # noqa: E402
 
@@ -209,7 +210,7 @@ def main(args):
         rows.append(in_child(f"inclusion contrast {args.contrast:g}", inclusion, stiff, scheme, discretization,
                              args.tol, args.threads))
         print(format_row(rows[-1]), flush=True)
-    with open(out / "bench_fft.csv", "w", newline="") as f:
+    with atomic_open(out / "bench_fft.csv") as f:
         writer = csv.DictWriter(f, COLUMNS, extrasaction="ignore")
         writer.writeheader()
         writer.writerows(rows)
@@ -226,7 +227,8 @@ def sweep_estimate(args):
 
     from homogenization import tables
 
-    shipped = list(_csv.DictReader(open(Path(tables.__file__).parent / "data" / "foam_table_samples.csv")))
+    with open(tables.SAMPLES_CSV, newline="") as fh:
+        shipped = list(_csv.DictReader(fh))
     cells, tol = int(shipped[0]["n_cells"]), float(shipped[0]["tol"])
     rows, ratios, cpu, its = [], [], 0.0, 0
     for density, gamma in args.sweep_samples:

@@ -26,9 +26,9 @@ Usage: ``python bench/bench_fft_preconditioners.py --out out/bench [--n 32] [--g
 ``DIR/bench_fft_preconditioners.csv``.
 """
 
-import os
+from foambase.threads import single_threaded_blas_by_default
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+single_threaded_blas_by_default()  # before numpy loads OpenBLAS: its threads spin against FFTW's
 
 import argparse  # noqa: E402
 import csv  # noqa: E402
@@ -39,6 +39,7 @@ import numpy as np  # noqa: E402
 import scipy.sparse as sp  # noqa: E402
 import scipy.sparse.linalg as spl  # noqa: E402
 
+from foambase.files import atomic_open  # noqa: E402
 from homogenization import _nodal  # noqa: E402
 from homogenization.fft import homogenize_fft  # noqa: E402
 from homogenization.tensors import isotropic_voigt, voigt_to_mandel  # noqa: E402
@@ -239,7 +240,7 @@ def main(args):
             if args.ritz and name == "green":
                 smallest = np.array2string(ritz_values(coefficients)[:8], precision=2)
                 print(f"  smallest Ritz values of K_I⁻¹K: {smallest}")
-    with open(args.out / "bench_fft_preconditioners.csv", "w", newline="") as fh:
+    with atomic_open(args.out / "bench_fft_preconditioners.csv") as fh:
         writer = csv.DictWriter(fh, list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
