@@ -17,11 +17,16 @@ The cell problem ``K u = b`` (``K = Bᵀ C B``, trilinear voxels with one-point 
     ``Q = P (Pᵀ K P)⁻¹ Pᵀ``) on the trilinear interpolation ``P`` from a grid ``F`` times coarser, optionally
     enriched by the four hourglass sign patterns (``hg``); the coarse matrix is assembled and factorized
     (scipy), which limits this to small N.
+``local-hg-F``
+    Green plus a local hourglass correction: ``K_I⁻¹ + Σ_c P_c (P_cᵀ K P_c)⁺ P_cᵀ``, one 12×12 block per node
+    ``c`` of the grid ``F`` times coarser, ``P_c`` its four hourglass-signed trilinear functions × 3
+    components (block Jacobi on the ``hg`` coarse space: no coarse solve, cheap to apply).
 
 Each row reports the iterations and the stopping value, the **equilibrium residual of the final iterate in the
 Green norm** ``‖r‖_{K_I⁻¹}/‖r_0‖_{K_I⁻¹}`` (= ``‖G[σ]‖/‖G[C:E]‖``, the stopping criterion of ``pcg``, so the
 rows are comparable whatever the preconditioner's own norm) and ``C_JJ``. ``--ritz`` also prints the smallest
 Ritz values of the Green-preconditioned operator (from the CG coefficients of the ``green`` runs).
+``--only NAME ...`` runs the named rows only.
 Usage: ``python bench/bench_fft_preconditioners.py --out out/bench [--n 32] [--gamma 1]``; writes
 ``DIR/bench_fft_preconditioners.csv``.
 """
@@ -175,6 +180,29 @@ def two_grid(problem, K, f, hourglass):
     return precondition
 
 
+def local_hourglass(problem, K, f):
+    """Green + Σ_c P_c (P_cᵀ K P_c)⁺ P_cᵀ over the 12 hourglass-signed functions of each coarse node c."""
+    N = problem.shape
+    P = prolongation(N, f, True)
+    nc = P.shape[1] // 15
+    perm = np.array([b * 3 * nc + 3 * c + comp for c in range(nc) for b in (1, 2, 3, 4) for comp in range(3)])
+    P = P[:, perm].tocsr()  # the 12 columns of each coarse node contiguous
+    A = (P.T @ K @ P).tocoo()
+    keep = (A.row // 12) == (A.col // 12)
+    D = np.zeros((nc, 12, 12))
+    D[A.row[keep] // 12, A.row[keep] % 12, A.col[keep] % 12] = A.data[keep]
+    w, V = np.linalg.eigh(D)  # pseudo-inverse: a block whose functions all lie in the void is singular
+    big = w > 1e-10 * np.abs(w).max()
+    Dinv = np.einsum("nij,nj,nkj->nik", V, np.where(big, 1.0 / np.where(big, w, 1.0), 0.0), V)
+    flat = lambda u: u.transpose(1, 2, 3, 0).ravel()  # noqa: E731
+    unflat = lambda v: v.reshape(N + (3,)).transpose(3, 0, 1, 2)  # noqa: E731
+
+    def precondition(r):
+        y = (P.T @ flat(r)).reshape(nc, 12)
+        return problem.green(r) + unflat(P @ np.einsum("nij,nj->ni", Dinv, y).ravel())
+    return precondition
+
+
 def jacobi_scaling(problem, K, stiffness):
     K_I = assemble(problem.phases, {p: np.eye(6) for p in stiffness})
     dK, dI = K.diagonal(), K_I.diagonal()
@@ -217,14 +245,19 @@ def main(args):
     stiffness = {0: np.zeros((6, 6)), 1: voigt_to_mandel(solid)}
     problem = Problem(phases, stiffness)
     K = assemble(phases, stiffness)
-    S = jacobi_scaling(problem, K, stiffness)
-    C_hom = homogenize_fft(phases, [0 * solid, solid], tol=1e-6, threads=1, maxiter=5000).C
-    methods = {"green": problem.green,
-               "green-jacobi": lambda r: S * problem.green(S * r),
-               "green-hom": green_reference(problem, voigt_to_mandel(C_hom))}
+    builders = {"green": lambda: problem.green,
+                "green-jacobi": lambda: (lambda S: lambda r: S * problem.green(S * r))(
+                    jacobi_scaling(problem, K, stiffness)),
+                "green-hom": lambda: green_reference(problem, voigt_to_mandel(
+                    homogenize_fft(phases, [0 * solid, solid], tol=1e-6, threads=1, maxiter=5000).C))}
     for f in args.coarse:
-        methods[f"two-grid-{f}"] = two_grid(problem, K, f, False)
-        methods[f"two-grid-hg-{f}"] = two_grid(problem, K, f, True)
+        builders[f"two-grid-{f}"] = lambda f=f: two_grid(problem, K, f, False)
+        builders[f"two-grid-hg-{f}"] = lambda f=f: two_grid(problem, K, f, True)
+        builders[f"local-hg-{f}"] = lambda f=f: local_hourglass(problem, K, f)
+    unknown = sorted(set(args.only or ()) - set(builders))
+    if unknown:
+        raise SystemExit(f"--only: unknown rows {unknown}; the rows are {sorted(builders)}")
+    methods = {name: build() for name, build in builders.items() if not args.only or name in args.only}
     rows = []
     for name, precondition in methods.items():
         for case in args.cases:
@@ -260,4 +293,5 @@ if __name__ == "__main__":
     p.add_argument("--tol", type=float, default=1e-4)
     p.add_argument("--maxiter", type=int, default=2000)
     p.add_argument("--ritz", action="store_true")
+    p.add_argument("--only", nargs="+", default=None, help="run only these rows (e.g. green local-hg-2)")
     main(p.parse_args())
