@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -98,12 +99,21 @@ def _homogenize_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _warn_threads(threads: int | None, per: int = 1) -> None:
-    """A warning when ``threads`` (per rank, ``per`` ranks) exceed the CPUs this process may use."""
+    """A warning when ``threads`` exceed the CPUs this process may use, or ``threads`` × ``per`` ranks the machine's.
+
+    Under mpirun each rank is usually bound to its own CPUs, so the per-rank threads are compared with this rank's
+    affinity, and all ranks' threads with the machine's CPUs.
+    """
     from foambase.threads import cpu_count
 
-    if threads is not None and threads * per > cpu_count():
-        logger.warning("--threads %d%s is more than the %d CPU(s) available: the threads will compete for them "
-                       "(slower, not faster)", threads, f" × {per} ranks" if per > 1 else "", cpu_count())
+    if threads is None:
+        return
+    if threads > cpu_count():
+        logger.warning("--threads %d is more than the %d CPU(s) this process may use: the threads will compete for "
+                       "them (slower, not faster)", threads, cpu_count())
+    elif threads * per > (os.cpu_count() or 1):
+        logger.warning("--threads %d × %d ranks is more than the machine's %d CPU(s): the threads will compete for "
+                       "them (slower, not faster)", threads, per, os.cpu_count() or 1)
 
 
 def _world():

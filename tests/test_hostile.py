@@ -473,6 +473,21 @@ def test_homogenize_refuses_bad_arguments_naming_them(images, capsys, monkeypatc
     assert snapshot(images) == before
 
 
+@pytest.mark.parametrize(("threads", "ranks", "warned"), [(1, 2, False), (2, 1, True), (1, 3, True), (None, 4, False)])
+def test_thread_warning_counts_a_bound_rank_and_the_machine(threads, ranks, warned, monkeypatch, caplog):
+    """Under mpirun each rank is bound to one of the 2 CPUs: one thread per rank is fine, more is not."""
+    import os
+
+    from foambase import threads as foam_threads
+    from homogenization.cli import _warn_threads
+
+    monkeypatch.setattr(foam_threads, "cpu_count", lambda: 1)
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)
+    with caplog.at_level("WARNING", logger="homogenization.cli"):
+        _warn_threads(threads, ranks)
+    assert bool(caplog.records) == warned, caplog.text
+
+
 def test_homogenize_defaults_prints_the_constants_and_warns_about_threads(images, capsys, monkeypatch):
     from foambase import threads
 
@@ -480,7 +495,7 @@ def test_homogenize_defaults_prints_the_constants_and_warns_about_threads(images
     monkeypatch.chdir(images)
     assert homogenize_main(["--image", "porous.npy", "--threads", "64", "--out", "r.json"]) == 0
     captured = capsys.readouterr()
-    assert "--threads 64 is more than the 2 CPU(s) available" in captured.err
+    assert "--threads 64 is more than the 2 CPU(s) this process may use" in captured.err
     assert "engineering constants: E1 = " in captured.out and "TI fit (l = x):" in captured.out
     data = json.loads((images / "r.json").read_text())
     assert data["inputs"]["tol"] == 1e-4 and data["info"]["threads"] == 64
