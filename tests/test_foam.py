@@ -113,7 +113,7 @@ def test_stl_encloses_the_solid_volume(foam12, tmp_path):
     ({"density": 0.001}, r"density 0\.001 is outside the valid range"),
     ({"density": 1.2}, r"density must be a solid volume fraction in \(0, 1\), got 1\.2"),
     ({"n_cells": 1}, r"n_cells must be an integer ≥ 2, got 1"),
-    ({"strut": "square"}, r"strut must be one of \('cylinder',\), got 'square'"),
+    ({"strut": "square"}, r"strut must be one of \('cylinder', 'wall'\), got 'square'"),
     ({"seed": -1}, r"seed must be an integer ≥ 0, got -1"),
 ])
 def test_invalid_parameters_raise_clear_errors(kwargs, match):
