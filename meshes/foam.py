@@ -74,8 +74,8 @@ from scipy.stats import qmc
 
 from foambase.errors import ComputationError
 from meshes.errors import FoamParameterError
-from meshes.rve import RVEMesh, mesh_rve  # the RVE mesher of a foam (meshes.rve), under its public path
 from meshes.gauge import GaugeWalls, Polytope, default_polytope
+from meshes.rve import RVEMesh, mesh_rve  # the RVE mesher of a foam (meshes.rve), under its public path
 
 __all__ = [
     "DENSITY_SAMPLE_LOG2",

@@ -153,7 +153,9 @@ class Polytope:
 def pyramid(k: int = 6, apex: float = 1.0, depth: float = 1.0, inradius: float = 1.0, name: str | None = None):
     """The pyramid over a regular ``k``-gon of inradius ``inradius`` at ``z = −depth``, apex at ``z = apex``.
 
-    The base polygon has a side normal to +x (side normals at azimuths ``2π m / k``). Its polar vertices are
+    The base polygon has a vertex on +x (vertices at azimuths ``2π m / k``, side normals at ``π (2m + 1) / k``), the
+    usual vertex-first parametrisation of a regular polygon; for ``k = 6`` two sides are normal to ±y, so the walls
+    between those faces and the base contain x and keep their 45° under the shrink along x. Its polar vertices are
     ``((apex + depth)/(inradius · apex)) u_m + (1/apex) e_z`` for the sides (``u_m`` the unit horizontal side
     directions) and ``−e_z / depth`` for the base, so base–side walls rise at ``atan(depth/inradius)`` from the
     horizontal and side–side walls are vertical.
@@ -163,7 +165,7 @@ def pyramid(k: int = 6, apex: float = 1.0, depth: float = 1.0, inradius: float =
     for label, value in (("apex", apex), ("depth", depth), ("inradius", inradius)):
         if not (np.isfinite(value) and value > 0):
             raise PolytopeError(f"{label} must be > 0, got {value!r}")
-    az = 2.0 * np.pi * np.arange(k) / k
+    az = np.pi * (2.0 * np.arange(k) + 1.0) / k
     sides = np.column_stack([(apex + depth) * np.cos(az), (apex + depth) * np.sin(az), np.full(k, inradius)])
     normals = np.vstack([sides, [0.0, 0.0, -1.0]])
     offsets = np.concatenate([np.full(k, inradius * apex) / np.linalg.norm(sides, axis=1), [depth]])

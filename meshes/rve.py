@@ -1,19 +1,22 @@
-"""Periodic two-phase tetrahedral RVE mesh of a Voronoi foam, conforming to the strut surface.
+"""Periodic two-phase tetrahedral RVE mesh of a Voronoi foam, conforming to the strut (or wall) surface.
 
 What is produced and why
 ------------------------
-A **two-phase** mesh of the whole unit cube: cells tagged :data:`SOLID` (``dist(x, struts) ≤ r``) and
-:data:`VOID`, the interface between them a triangulated surface whose vertices lie exactly on the strut surface
-``dist = r``, the six faces tagged :data:`FACE_TAGS`, and opposite faces identical node for node (as
-``dolfinx_mpc``'s periodic constraint needs). A solid-only mesh is the solid cells of it (``kind="solid"``).
+A **two-phase** mesh of the whole periodic box of the foam (the unit cube by default, any ``(L1, L2, L3)``):
+cells tagged :data:`SOLID` (``dist(x, skeleton) ≤ r``) and :data:`VOID`, the interface between them a
+triangulated surface whose vertices lie exactly on the solid's surface ``dist = r``, the six faces tagged
+:data:`FACE_TAGS`, and opposite faces identical node for node (as ``dolfinx_mpc``'s periodic constraint needs). A
+solid-only mesh is the solid cells of it (``kind="solid"``). The skeleton is the strut axes of a strut foam or the
+wall mid-surfaces of a wall foam (whose ``dist`` is the in-layer distance, :mod:`meshes.gauge`); the mesher only
+needs ``dist`` and the closest skeleton points.
 
 The issue's route — OpenCASCADE cylinders and spheres fused (or fragmented) with the cube, then gmsh — was
 prototyped and dropped: for 20 cells (~430 cylinder images, ~180 spheres) one boolean took seconds to tens of
 seconds per block and failed on tangent cylinder caps and sphere seams, and a marching-cubes surface handed to
 gmsh's 3D mesher did not finish in 10 minutes. This mesher needs no CAD boolean and cannot fail on a valid foam:
 
-1. **Background mesh**: the cube ``[0,1]³`` cut into ``n³`` cubes (``n = ceil(1/h)``), each split into the six Kuhn
-   (Freudenthal) tetrahedra around its main diagonal. The pattern is translation invariant, hence periodic.
+1. **Background mesh**: the box cut into ``n1 × n2 × n3`` cells (``n_a = ceil(L_a/h)``), each split into the six
+   Kuhn (Freudenthal) tetrahedra around its main diagonal. The pattern is translation invariant, hence periodic.
 2. **Level set**: ``φ(x) = dist(x, struts) − r`` at the nodes (exact periodic distance,
    :meth:`meshes.foam.VoronoiFoam.closest_points`). Solid is ``φ < 0``.
 3. **Snapping** (as in isosurface stuffing, Labelle & Shewchuk 2007): nodes with ``|φ| < SNAP · h`` move onto
@@ -78,25 +81,24 @@ _ROOT_ITERATIONS = 60
 class StrutFoam(Protocol):
     """What the mesher needs of a foam (:class:`meshes.foam.VoronoiFoam` is one).
 
-    Its parameters (for messages), strut radius, and the periodic distance to the strut axes with the closest points.
+    Its periodic box, its radius (strut radius or wall half-width), and the periodic distance to its skeleton
+    (strut axes or wall mid-surfaces) with the closest points; distances need only be exact up to ``upper``
+    (beyond it, any value ``> upper``).
     """
 
-    n_cells: int
-    density: float
-    gamma: float
-    seed: int
+    box: np.ndarray
     radius: float
 
-    def distance(self, points: np.ndarray) -> np.ndarray:
-        """Periodic distance of ``points`` (n, 3) to the strut axes."""
+    def distance(self, points: np.ndarray, upper: float = np.inf) -> np.ndarray:
+        """Periodic distance of ``points`` (n, 3) to the skeleton."""
 
-    def closest_points(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The distances and the closest points on the strut axes (wrapped into the unit cube)."""
+    def closest_points(self, points: np.ndarray, upper: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+        """The distances and the closest skeleton points (on the image next to the wrapped point)."""
 
 
 @dataclass(frozen=True)
 class RVEMesh:
-    """A periodic tetrahedral mesh of a foam RVE in the unit cube (:func:`mesh_rve`).
+    """A periodic tetrahedral mesh of a foam RVE in its periodic box (:func:`mesh_rve`).
 
     Attributes
     ----------
@@ -105,15 +107,17 @@ class RVEMesh:
     cell_tags : dolfinx.mesh.MeshTags
         :data:`SOLID` and (``kind == "two-phase"``) :data:`VOID`.
     facet_tags : dolfinx.mesh.MeshTags
-        Boundary facets on the cube faces, :data:`FACE_TAGS` (x0 = 1, x1 = 2, y0 = 3, y1 = 4, z0 = 5, z1 = 6).
+        Boundary facets on the box faces, :data:`FACE_TAGS` (x0 = 1, x1 = 2, y0 = 3, y1 = 4, z0 = 5, z1 = 6).
     kind : str
         ``"two-phase"`` (solid and void meshed, conforming interface) or ``"solid"`` (the solid cells only).
     h : float
-        Requested element size; the background grid spacing is ``1 / ceil(1/h) ≤ h``.
+        Requested element size; the background grid spacing along axis ``a`` is ``L_a / ceil(L_a/h) ≤ h``.
     n_elements : int
         Global number of tetrahedra.
     meshing_s : float
         Wall time of the build and distribution (maximum over ranks), seconds.
+    box : tuple
+        The periodic box ``(L1, L2, L3)`` (pass ``((0, 0, 0), box)`` to :func:`homogenization.fem.homogenize_fem`).
 
     """
 
@@ -124,6 +128,7 @@ class RVEMesh:
     h: float
     n_elements: int
     meshing_s: float
+    box: tuple = (1.0, 1.0, 1.0)
 
     def __iter__(self):
         """Unpack as ``mesh, cell_tags, facet_tags = mesh_rve(...)`` (the form README's FEM section uses)."""
@@ -133,24 +138,27 @@ class RVEMesh:
 # --------------------------------------------------------------------------------------------------
 # Background Kuhn mesh
 # --------------------------------------------------------------------------------------------------
-def _kuhn_grid(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Nodes ``(n+1)³ × 3``, their periodic ranks, and the ``6 n³ × 4`` Kuhn tetrahedra of ``[0,1]³``.
+def _kuhn_grid(n, box=(1.0, 1.0, 1.0)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Nodes, their periodic ranks, and the ``6 n1 n2 n3 × 4`` Kuhn tetrahedra of the box ``[0, L1] × …``.
 
-    Node ``(i, j, k)`` has index ``(i (n+1) + j)(n+1) + k`` and periodic rank ``((i mod n) n + j mod n) n + k mod n``
-    (the same for a node and its images on opposite faces).
+    ``n`` is an integer (``n³`` cubes) or ``(n1, n2, n3)``. Node ``(i, j, k)`` has index ``(i (n2+1) + j)(n3+1) + k``,
+    coordinates ``(i L1/n1, j L2/n2, k L3/n3)`` (exactly ``L_a`` on the upper faces) and periodic rank
+    ``((i mod n1) n2 + j mod n2) n3 + k mod n3`` (the same for a node and its images on opposite faces).
     """
-    idx = np.arange(n + 1)
-    ijk = np.stack(np.meshgrid(idx, idx, idx, indexing="ij"), axis=-1).reshape(-1, 3)
-    nodes = ijk / n
+    n = np.broadcast_to(np.asarray(n, dtype=int), (3,))
+    L = np.asarray(box, dtype=float)
+    idx = [np.arange(k + 1) for k in n]
+    ijk = np.stack(np.meshgrid(*idx, indexing="ij"), axis=-1).reshape(-1, 3)
+    nodes = ijk / n * L
     wrapped = ijk % n
-    rank = (wrapped[:, 0] * n + wrapped[:, 1]) * n + wrapped[:, 2]
-    corner = np.stack(np.meshgrid(*(np.arange(n),) * 3, indexing="ij"), axis=-1).reshape(-1, 3)
+    rank = (wrapped[:, 0] * n[1] + wrapped[:, 1]) * n[2] + wrapped[:, 2]
+    corner = np.stack(np.meshgrid(*(np.arange(k) for k in n), indexing="ij"), axis=-1).reshape(-1, 3)
     unit = np.eye(3, dtype=int)
     tets = []
     for perm in itertools.permutations(range(3)):
         path = np.cumsum([np.zeros(3, dtype=int)] + [unit[p] for p in perm], axis=0)     # 000 → ... → 111
         vertices = corner[:, None, :] + path[None]
-        tets.append((vertices[..., 0] * (n + 1) + vertices[..., 1]) * (n + 1) + vertices[..., 2])
+        tets.append((vertices[..., 0] * (n[1] + 1) + vertices[..., 1]) * (n[2] + 1) + vertices[..., 2])
     return nodes, rank, np.concatenate(tets)
 
 
@@ -223,16 +231,22 @@ def _split(v: list[int], sign: list[int], cut: dict[tuple[int, int], int],
 # --------------------------------------------------------------------------------------------------
 # The mesher (serial, numpy)
 # --------------------------------------------------------------------------------------------------
+def _box(foam: StrutFoam) -> np.ndarray:
+    """The foam's periodic box lengths (the unit cube for a foam without a ``box``)."""
+    return np.asarray(getattr(foam, "box", (1.0, 1.0, 1.0)), dtype=float)
+
+
 def _edge_roots(foam: StrutFoam, a: np.ndarray, b: np.ndarray, fa: np.ndarray, fb: np.ndarray) -> np.ndarray:
     """Points ``a + t (b − a)`` where ``φ = 0``, given ``φ(a) = fa`` and ``φ(b) = fb`` of opposite signs.
 
     Safeguarded secant (Illinois) iterations on ``t ∈ [0, 1]`` until the bracket is below ``1e-12``.
     """
     lo, hi = np.zeros(len(a)), np.ones(len(a))
+    upper = foam.radius + 2.0 * float(np.linalg.norm(b - a, axis=1).max(initial=0.0))
     flo, fhi = fa.copy(), fb.copy()
     t = lo - flo * (hi - lo) / (fhi - flo)
     for _ in range(_ROOT_ITERATIONS):
-        ft = foam.distance(a + t[:, None] * (b - a)) - foam.radius
+        ft = foam.distance(a + t[:, None] * (b - a), upper=upper) - foam.radius
         same = np.sign(ft) == np.sign(flo)
         lo, flo, fhi = np.where(same, t, lo), np.where(same, ft, flo), np.where(same, 0.5 * fhi, fhi)
         hi, fhi, flo = np.where(same, hi, t), np.where(same, fhi, ft), np.where(same, flo, 0.5 * flo)
@@ -247,14 +261,15 @@ def _snap(foam: StrutFoam, x: np.ndarray, rank: np.ndarray, dist: np.ndarray, fo
           h: float) -> tuple[np.ndarray, np.ndarray]:
     """Snapped positions and the mask of nodes with ``|φ| < SNAP · h`` that moved onto the surface ``φ = 0``.
 
-    Interior nodes move radially, ``x ← q + (x − q) r / |x − q|``. A node on a cube face (or edge) moves inside
-    that face (edge), along the in-plane part of ``(x − q)`` to the root of ``φ`` on that line, so that the face
+    Interior nodes move away from their foot, ``x ← q + (x − q) r / |x − q|``. A node on a box face (or edge) moves
+    inside that face (edge), along the in-plane part of ``(x − q)`` to the root of ``φ`` on that line, so that the face
     stays flat and a node and its periodic images move identically (the distance is periodic). Corners never move.
     """
     r = foam.radius
+    L = _box(foam)
     phi = dist - r
-    wrapped = x - np.floor(x)
-    on_face = (x == 0) | (x == 1)
+    wrapped = x - np.floor(x / L) * L
+    on_face = (x == 0) | (x == L)
     normal = (wrapped - foot) / np.where(dist > 0, dist, 1.0)[:, None]
     direction = np.where(on_face, 0.0, normal)
     length = np.linalg.norm(direction, axis=1)
@@ -267,7 +282,7 @@ def _snap(foam: StrutFoam, x: np.ndarray, rank: np.ndarray, dist: np.ndarray, fo
     if face.size:
         step = direction[face] / length[face, None] * (-np.sign(phi[face]) * 2 * SNAP * h / length[face])[:, None]
         a, b = x[face], x[face] + step
-        fb = foam.distance(b) - r
+        fb = foam.distance(b, upper=r + 4 * SNAP * h) - r
         ok = np.sign(fb) == -np.sign(phi[face])
         moved[face[ok]] = _edge_roots(foam, a[ok], b[ok], phi[face[ok]], fb[ok])
         snap[face[~ok]] = False
@@ -275,15 +290,18 @@ def _snap(foam: StrutFoam, x: np.ndarray, rank: np.ndarray, dist: np.ndarray, fo
     return moved, snap
 
 
-def _cut_mesh(foam: StrutFoam, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Nodes, tetrahedra and cell tags (SOLID / VOID) of the conforming two-phase mesh on an ``n³`` grid."""
-    x, rank, tets = _kuhn_grid(n)
-    h, r = 1.0 / n, foam.radius
-    dist, foot = foam.closest_points(x)
+def _cut_mesh(foam: StrutFoam, n) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Nodes, tetrahedra and cell tags (SOLID / VOID) of the conforming two-phase mesh on an ``(n1, n2, n3)`` grid."""
+    L = _box(foam)
+    n = np.broadcast_to(np.asarray(n, dtype=int), (3,))
+    x, rank, tets = _kuhn_grid(n, L)
+    spacing = L / n
+    h, r = float(spacing.max()), foam.radius
+    dist, foot = foam.closest_points(x, upper=r + 2 * SNAP * h)
     phi = dist - r
     # 3. snap nodes close to the surface onto it, undoing snaps that flatten a tetrahedron
     moved, snap = _snap(foam, x, rank, dist, foot, h)
-    v_min = MIN_VOLUME_FRACTION * h**3 / 6.0
+    v_min = MIN_VOLUME_FRACTION * float(np.prod(spacing)) / 6.0
     while True:
         bad = np.abs(_volumes(np.where(snap[:, None], moved, x), tets)) < v_min
         undo = np.unique(tets[bad]) if bad.any() else np.empty(0, dtype=int)
@@ -309,7 +327,7 @@ def _cut_mesh(foam: StrutFoam, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarr
     cut_ids = len(x) + np.arange(len(pairs))
     cut = dict(zip(map(tuple, pairs.tolist()), cut_ids.tolist()))
     ranks = dict(enumerate(rank.tolist()))
-    ranks.update(zip(cut_ids.tolist(), (n**3 + klass.ravel()).tolist()))
+    ranks.update(zip(cut_ids.tolist(), (int(np.prod(n)) + klass.ravel()).tolist()))
     solid_pieces, void_pieces = [], []
     for v, sg in zip(cut_tets.tolist(), s[is_cut].tolist()):
         solid, void = _split(v, sg, cut, ranks)
@@ -319,7 +337,7 @@ def _cut_mesh(foam: StrutFoam, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarr
     whole_solid = (s[~is_cut] < 0).any(axis=1)
     undecided = (s[~is_cut] == 0).all(axis=1)                 # four snapped vertices: decide by the centroid
     if undecided.any():
-        whole_solid[undecided] = foam.distance(x[whole[undecided]].mean(axis=1)) < r
+        whole_solid[undecided] = foam.distance(x[whole[undecided]].mean(axis=1), upper=r) < r
     x = np.concatenate([x, roots])
     cells = np.concatenate([whole, np.array(solid_pieces, dtype=int).reshape(-1, 4),
                             np.array(void_pieces, dtype=int).reshape(-1, 4)])
@@ -332,12 +350,12 @@ def _cut_mesh(foam: StrutFoam, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarr
     return x, cells, tags
 
 
-def _boundary_facets(x: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Facets (vertex triples) lying on the cube faces and their :data:`FACE_TAGS` values."""
+def _boundary_facets(x: np.ndarray, cells: np.ndarray, box=(1.0, 1.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
+    """Facets (vertex triples) lying on the box faces and their :data:`FACE_TAGS` values."""
     faces = np.concatenate([cells[:, [1, 2, 3]], cells[:, [0, 2, 3]], cells[:, [0, 1, 3]], cells[:, [0, 1, 2]]])
     facets, values = [], []
     for axis in range(3):
-        for side, plane in enumerate((0.0, 1.0)):
+        for side, plane in enumerate((0.0, float(box[axis]))):
             on = np.all(x[faces][..., axis] == plane, axis=1)
             facets.append(faces[on])
             values.append(np.full(on.sum(), 1 + 2 * axis + side, dtype=np.int32))
@@ -346,16 +364,18 @@ def _boundary_facets(x: np.ndarray, cells: np.ndarray) -> tuple[np.ndarray, np.n
 
 def mesh_rve(foam: StrutFoam, h: float, comm: MPI.Comm | None = None, order: int = 1,
              kind: str = "two-phase") -> RVEMesh:
-    """Periodic conforming tetrahedral mesh of the foam's unit-cube RVE (see the module docstring).
+    """Periodic conforming tetrahedral mesh of the foam's RVE box (see the module docstring).
 
     Parameters
     ----------
     foam
-        The foam; its solid is ``{x : dist(x, struts) ≤ foam.radius}``.
+        The foam; its solid is ``{x : dist(x, skeleton) ≤ foam.radius}`` in the box ``foam.box`` (the unit cube for
+        a foam without one).
     h
-        Element size: the background grid has ``n = ceil(1/h)`` cubes per side (spacing ``1/n ≤ h``), each split
-        into six tetrahedra; cut tetrahedra are subdivided, so the element count is about ``6 n³`` plus the cut
-        pieces. Must satisfy ``1/64 ≤ h ≤ 2 radius`` (a strut diameter spans at least one grid spacing).
+        Element size: the background grid has ``n_a = ceil(L_a/h)`` cubes along axis ``a`` (spacing
+        ``L_a/n_a ≤ h``), each split into six tetrahedra; cut tetrahedra are subdivided, so the element count is
+        about ``6 n1 n2 n3`` plus the cut pieces. Must satisfy ``(L1 L2 L3)^(1/3)/64 ≤ h ≤ 2 radius`` (at most
+        about 64³ cubes; a strut diameter or wall width spans at least one grid spacing).
     comm
         Communicator of the mesh (default ``MPI.COMM_WORLD``); the mesh is built on rank 0 and distributed.
     order
@@ -371,14 +391,16 @@ def mesh_rve(foam: StrutFoam, h: float, comm: MPI.Comm | None = None, order: int
     Raises
     ------
     FoamParameterError
-        For ``h`` outside ``[1/64, 2 radius]``, ``order ≠ 1`` or an unknown ``kind``, naming the foam.
+        For ``h`` outside ``[(L1 L2 L3)^(1/3)/64, 2 radius]``, ``order ≠ 1`` or an unknown ``kind``, naming the foam.
 
     """
-    name = (f"VoronoiFoam(n_cells={foam.n_cells}, density={foam.density}, gamma={foam.gamma}, seed={foam.seed}, "
-            f"radius={foam.radius:.4g})")
-    if not (isinstance(h, (int, float)) and 1.0 / 64 <= h <= 2 * foam.radius):
+    name = repr(foam)
+    L = _box(foam)
+    h_min = float(np.prod(L)) ** (1.0 / 3.0) / 64
+    if not (isinstance(h, (int, float)) and h_min * (1 - 1e-12) <= h <= 2 * foam.radius):
+        low = "1/64" if np.prod(L) == 1.0 else f"(L1 L2 L3)^(1/3)/64 = {h_min:.4g}"
         raise FoamParameterError(
-            f"mesh_rve: h must be in [1/64, 2 radius = {2 * foam.radius:.4g}] for {name}, got {h!r}")
+            f"mesh_rve: h must be in [{low}, 2 radius = {2 * foam.radius:.4g}] for {name}, got {h!r}")
     if order != 1:
         raise FoamParameterError(f"mesh_rve: only order=1 (straight tetrahedra) is implemented, got {order!r}")
     if kind not in _KINDS:
@@ -391,12 +413,12 @@ def mesh_rve(foam: StrutFoam, h: float, comm: MPI.Comm | None = None, order: int
 
     def build():
         try:
-            x, cells, tags = _cut_mesh(foam, math.ceil(1.0 / h - 1e-9))
+            x, cells, tags = _cut_mesh(foam, [math.ceil(length / h - 1e-9) for length in L])
             if kind == "solid":
                 cells, tags = cells[tags == SOLID], tags[tags == SOLID]
                 used, cells = np.unique(cells, return_inverse=True)
                 x, cells = x[used], cells.reshape(-1, 4)
-            return (x, cells, tags, *_boundary_facets(x, cells))
+            return (x, cells, tags, *_boundary_facets(x, cells, L))
         except Exception as exc:
             raise ComputationError(f"mesh_rve failed for {name}, h={h}: {exc}") from exc
 
@@ -405,4 +427,4 @@ def mesh_rve(foam: StrutFoam, h: float, comm: MPI.Comm | None = None, order: int
     meshing_s = comm.allreduce(time.perf_counter() - start, op=MPI.MAX)
     n_elements = mesh.topology.index_map(3).size_global
     log.info("mesh_rve: %s, %s mesh, h=%g: %d tetrahedra in %.2f s", name, kind, h, n_elements, meshing_s)
-    return RVEMesh(mesh, cell_tags, facet_tags, kind, float(h), n_elements, meshing_s)
+    return RVEMesh(mesh, cell_tags, facet_tags, kind, float(h), n_elements, meshing_s, tuple(L.tolist()))
