@@ -586,12 +586,13 @@ class VoronoiFoam:
         r_min = 0.5 * MIN_WALL_TO_CELL * cell
         sample = self._sample()
         rank = max(math.ceil(density * len(sample)) - 1, 0)
-        # exact ψ up to an upper bound that doubles until it holds the density-quantile (and r_min)
-        upper = max(r_min, density * cell / 6.0)
+        # exact ψ up to an upper bound that doubles until it holds the density-quantile (and r_min); the first
+        # guess is about twice the half-width of walls of area ~2.9 γ^(-2/3) per cell size (Poisson–Voronoi)
+        upper = max(r_min, density * cell * gamma ** (2.0 / 3.0) / 2.9)
         psi = self._distance.evaluate(sample, upper=upper)
         while np.count_nonzero(psi <= upper) <= rank:
             upper *= 2.0
-            redo = psi > upper / 2.0
+            redo = psi > upper / 2.0          # the values beyond the former bound were not exact
             psi[redo] = self._distance.evaluate(sample[redo], upper=upper)
         self.density_bounds = (float(np.mean(psi <= r_min)), MAX_WALL_DENSITY)
         self._check_range(density, f"a wall width of {MIN_WALL_TO_CELL} × the mean cell size (V/n)^(1/3)",

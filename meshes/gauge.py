@@ -237,6 +237,13 @@ class GaugeWalls:
         self.seeds = np.asarray(seeds, dtype=float)
         self.box_u = self.box * self.stretch
         self._tile(np.ones(3, dtype=int))
+        from meshes import _gauge_native
+
+        self._native = _gauge_native.load()
+        c = lambda a, t=np.float64: np.ascontiguousarray(a, dtype=t)  # noqa: E731
+        self._c = {"nu": c(self.nu), "pa": c(self.pa, np.int32), "pb": c(self.pb, np.int32), "dn": c(self.dn),
+                   "nn": c(self.nn), "t": c(self.tangent), "D1": c(self.D1), "r1": c(self.rate1), "Dn1": c(self.Dn1),
+                   "D2": c(self.D2), "r2": c(self.rate2), "Dn2": c(self.Dn2)}
 
     def _tile(self, m: np.ndarray) -> None:
         """Site images over ``{−m_a..m_a}`` periods along each axis ``a``."""
@@ -246,7 +253,7 @@ class GaugeWalls:
         r = [np.arange(-k, k + 1) for k in m]
         shifts = np.stack(np.meshgrid(*r, indexing="ij"), axis=-1).reshape(-1, 3)
         self.m = m
-        self.images = (self.seeds[None] + shifts[:, None] * self.box).reshape(-1, 3)
+        self.images = np.ascontiguousarray((self.seeds[None] + shifts[:, None] * self.box).reshape(-1, 3))
         self.image_seed = np.tile(np.arange(self.n_seeds), len(shifts))
         self.tree = cKDTree(self.images * self.stretch)
         self.reach = m * self.box_u          # every site within reach[a] of a box point along a is tiled
@@ -277,6 +284,65 @@ class GaugeWalls:
         return out if details else out[0]
 
     def _evaluate_chunk(self, x: np.ndarray, upper: float):
+        if self._native is not None:
+            return self._evaluate_native(x, upper)
+        return self._evaluate_numpy(x, upper)
+
+    def _evaluate_native(self, x: np.ndarray, upper: float):
+        """The compiled kernel (``_gauge_kernel.c``).
+
+        The same algebra as :meth:`_evaluate_numpy`, one point at a time with early exits.
+        """
+        ffi, lib = self._native
+        M = len(x)
+        psi = np.full(M, np.inf)
+        feet = x.copy()
+        piece = np.full(M, -1, dtype=np.int32)
+        first = np.zeros(M, dtype=np.int64)
+        todo = np.arange(M)
+        k = 16
+        c = self._c
+
+        def ptr(a, kind="double *"):
+            return ffi.cast(kind, a.ctypes.data)
+
+        while todo.size:
+            k = min(k, len(self.images))
+            xt = np.ascontiguousarray(x[todo])
+            e, idx = self._query(xt, k)
+            m = len(todo)
+            out = (np.empty(m), np.empty((m, 3)), np.empty(m, dtype=np.int32), np.empty(m, dtype=np.int64),
+                   np.empty(m, dtype=np.int32))
+            idx = np.ascontiguousarray(idx, dtype=np.int64)
+            e = np.ascontiguousarray(e)
+            lib.gw_evaluate(m, ptr(xt), k, ptr(idx, "int64_t *"), ptr(e), ptr(self.images), len(self.nu),
+                            ptr(c["nu"]), len(self.pa), ptr(c["pa"], "int *"), ptr(c["pb"], "int *"),
+                            ptr(c["dn"]), ptr(c["nn"]), ptr(c["t"]), ptr(c["D1"]), ptr(c["r1"]), ptr(c["Dn1"]),
+                            ptr(c["D2"]), ptr(c["r2"]), ptr(c["Dn2"]), self.R, self.G, float(upper),
+                            int(k == len(self.images)), ptr(out[0]), ptr(out[1]), ptr(out[2], "int *"),
+                            ptr(out[3], "int64_t *"), ptr(out[4], "int *"))
+            done = out[4].astype(bool)
+            rows = todo[done]
+            psi[rows], feet[rows], piece[rows], first[rows] = out[0][done], out[1][done], out[2][done], \
+                out[3][done]
+            todo = todo[~done]
+            k *= 2
+        normals = np.zeros_like(x)
+        has = piece >= 0
+        normals[has] = self.dn[piece[has]] / np.linalg.norm(self.dn[piece[has]], axis=1)[:, None]
+        feet[~np.isfinite(psi)] = x[~np.isfinite(psi)]
+        return psi, feet, self.image_seed[first], normals
+
+    def _query(self, x: np.ndarray, k: int):
+        """The ``k`` Euclidean nearest site images in ``u``, enlarging the tiling when they reach its edge."""
+        while True:
+            e, idx = self.tree.query(x * self.stretch, k=k)
+            far = float(e[:, -1].max()) if len(e) else 0.0
+            if far < self.reach.min():
+                return e, idx
+            self._tile(np.maximum(self.m, np.ceil(far / self.box_u).astype(int) + 1))
+
+    def _evaluate_numpy(self, x: np.ndarray, upper: float):
         M = len(x)
         psi = np.full(M, np.inf)
         feet = x.copy()
