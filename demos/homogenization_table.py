@@ -3,7 +3,9 @@
 #
 # This demo shows:
 # - the sweep behind the shipped table (`homogenization.tables.run_sweep`): foams
-#   `VoronoiFoam(n_cells, density, gamma, seed)` voxelized at N³ and homogenized by the FFT solver;
+#   `VoronoiFoam(n_cells, density, gamma, seed, box=, distance=)` voxelized with cubic voxels and homogenized by
+#   the FFT solver in their periodic box (`--box equiaxed`: the box (γ, 1, 1) that follows the cells;
+#   `--distance polyhedral`: the printed wall foam; each setting writes a table of its own name);
 # - the samples dealt to the MPI ranks, each finished sample cached as one JSON file (`--cache`), so an
 #   interrupted run resumes without recomputing anything;
 # - the table of means and standard deviations over seeds per (density, γ), with the closest transversely
@@ -77,12 +79,13 @@ def table_stage(rows: list[dict], out: Path, ship: bool, settings: tables.SweepS
                   "date": datetime.now(UTC).isoformat(timespec="seconds"), "ranks": comm.size,
                   "wall_s_this_run": wall, "sample_wall_s_total": float(sum(r["wall_s"] for r in rows)),
                   "n_samples": len(rows), "settings": tables.settings_dict(settings)}
-    paths = tables.write_tables(rows, out, provenance)
+    paths = tables.write_tables(rows, out, provenance, settings.name)
     if ship:
-        tables.write_tables(rows, tables.DATA_DIR, provenance)
+        tables.write_tables(rows, tables.DATA_DIR, provenance, settings.name)
     table = tables.aggregate(rows)
-    print(f"{len(rows)} samples, {len(table)} (density, gamma) points; N = {settings.resolution}, "
-          f"n_cells = {settings.n_cells}, tol = {settings.tol:g}; this run {wall:.0f} s on {comm.size} ranks")
+    print(f"{len(rows)} samples, {len(table)} (density, gamma) points; {settings.distance} foam, {settings.box} box, "
+          f"N = {settings.resolution}, n_cells = {settings.n_cells}, tol = {settings.tol:g}; this run {wall:.0f} s "
+          f"on {comm.size} ranks")
     print(f"{'density':>8} {'gamma':>6} {'E1/Es':>10} {'E2/Es':>10} {'E3/Es':>10} {'G23/Es':>10} {'TI err':>7} "
           f"{'iso err':>7}")
     for t in table:
@@ -128,11 +131,17 @@ if __name__ == "__main__":
     p.add_argument("--cells", type=int, default=tables.SweepSettings.n_cells)
     p.add_argument("--resolution", type=int, default=tables.SweepSettings.resolution)
     p.add_argument("--tol", type=float, default=tables.SweepSettings.tol)
+    p.add_argument("--box", choices=("cube", "equiaxed"), default=tables.SweepSettings.box,
+                   help="the RVE box: the unit cube or (gamma, 1, 1) (resolution: voxels along y and z)")
+    p.add_argument("--distance", choices=tables.FOAMS, default=tables.SweepSettings.distance,
+                   help="the foam: Euclidean struts or polyhedral walls")
+    p.add_argument("--maxiter", type=int, default=None, help="CG iterations per load case (default 1000)")
     p.add_argument("--ship", action="store_true", help="also write the tables into homogenization/data")
     p.add_argument("--stop-after", type=int, default=None, help="stop each rank after this many new samples")
     a = p.parse_args()
     if a.ci:
         a.densities, a.gammas, a.seeds, a.resolution, a.cells = (0.15, 0.3), (0.1,), (0,), 20, 6
-    settings = tables.SweepSettings(n_cells=a.cells, resolution=a.resolution, tol=a.tol)
+    settings = tables.SweepSettings(n_cells=a.cells, resolution=a.resolution, tol=a.tol, box=a.box,
+                                    distance=a.distance, maxiter=a.maxiter)
     sys.exit(main(a.out, a.cache or a.out / "cache", settings, tables.grid(a.densities, a.gammas, a.seeds),
                   a.ship and not a.ci, a.stop_after))

@@ -199,7 +199,8 @@ def _interpolate(table: dict[str, np.ndarray], name: str, density: float, gamma:
         x, y = table["density"][rows], table[name][rows]
         order = np.argsort(x)
         y = np.log(y[order]) if name in _MODULI else y[order]
-        per_gamma.append(float(PchipInterpolator(x[order], y)(density)))
+        # a table of one density (a selectable table computed for one scene) is exact at its node only
+        per_gamma.append(float(PchipInterpolator(x[order], y)(density)) if len(x) > 1 else float(y[0]))
     value = float(PchipInterpolator(np.log(gammas), per_gamma)(np.log(gamma))) if len(gammas) > 1 else per_gamma[0]
     return float(np.exp(value)) if name in _MODULI else value
 
@@ -231,13 +232,24 @@ def foam_material(density: float, gamma: float, E_solid: float, nu_solid: float,
         ``TransverseIsotropic(E_t = mean(E2, E3), E_l = E1, nu_t = mean(ν23, ν32), nu_tl = mean(ν21, ν31),
         G_l = mean(G12, G13))``.
     table
-        Aggregated table CSV (default: the shipped ``homogenization/data/foam_table.csv``).
+        The name of a shipped table (``homogenization.tables.shipped_tables()``: ``"cube"``, the default, the
+        Euclidean strut foam with 8 cells in the unit cube; ``"equiaxed"``, the same foam with 27 cells in the
+        box ``(γ, 1, 1)``, tabulated only where it was computed) or the path of an aggregated table CSV (a
+        ``Path``, or a string ending in ``.csv``).
 
     """
-    from homogenization.tables import NU_SOLID, TABLE_CSV
+    from homogenization.tables import NU_SOLID, shipped_tables, table_paths
 
     if fit not in FOAM_FITS:
         raise InputError(f"fit must be one of {FOAM_FITS}, got {fit!r}")
+    if table is None:
+        table, label = table_paths("cube")["table"], "cube"
+    elif isinstance(table, str) and not table.endswith(".csv"):
+        if table not in shipped_tables():
+            raise InputError(f"table = {table!r} is not a shipped foam table {shipped_tables()} nor a .csv path")
+        table, label = table_paths(table)["table"], table
+    else:
+        label = str(table)
     if not (np.isfinite(E_solid) and E_solid > 0):
         raise InadmissibleMaterialError(f"E_solid must be > 0 Pa, got {E_solid!r}")
     if not (np.isfinite(rho_solid) and rho_solid >= 0):
@@ -246,11 +258,15 @@ def foam_material(density: float, gamma: float, E_solid: float, nu_solid: float,
         raise InputError(f"nu_solid = {nu_solid!r}: the foam table was computed for a solid with nu = {NU_SOLID} "
                          "(moduli scale with E_solid, Poisson's ratio cannot be rescaled); recompute the table "
                          "(homogenization.tables, NU_SOLID) for another solid")
-    data = _foam_table(str(Path(table) if table is not None else TABLE_CSV))
+    data = _foam_table(str(Path(table)))
+    grid = {g: tuple(np.sort(data["density"][data["gamma"] == g])) for g in np.unique(data["gamma"])}
+    if len(set(grid.values())) != 1:
+        raise InputError(f"foam table {label!r} is not a full (density, gamma) grid: densities per gamma {grid}")
     for name, value, nodes in (("density", density, data["density"]), ("gamma", gamma, data["gamma"])):
         lo, hi = float(nodes.min()), float(nodes.max())
         if not (np.isfinite(value) and lo - 1e-12 <= value <= hi + 1e-12):
-            raise InputError(f"{name} = {value!r} is outside the tabulated range [{lo:g}, {hi:g}] of the foam table")
+            raise InputError(f"{name} = {value!r} is outside the tabulated range [{lo:g}, {hi:g}] of the foam table "
+                             f"{label!r}")
 
     def q(name: str) -> float:
         return _interpolate(data, name, density, gamma)

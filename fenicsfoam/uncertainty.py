@@ -88,6 +88,7 @@ def _explicit_regions(scene, table: Path) -> dict[str, dict[str, Any]]:
         if region.material != "foam":
             continue
         p = dict(region.parameters)
+        p.pop("table", None)          # the per-seed table replaces the region's own
         m = foam_material(p.pop("density"), p.pop("gamma"), p.pop("E_solid"), p.pop("nu_solid"), table=table, **p)
         if isinstance(m, Isotropic):
             constants = {"material": "isotropic", "E": m.E, "nu": m.nu, "rho": m.rho}
@@ -124,6 +125,17 @@ def _minus(a: Value, b: Value) -> Value:
 def _sizes(names) -> dict[str, int]:
     from fenicsfoam.scene.kinds import probe_size
     return {name: probe_size(name) for name in names}
+
+
+def _default_samples(scene) -> Path:
+    """The samples CSV of the one shipped table every foam region of ``scene`` uses."""
+    from homogenization.tables import table_paths
+
+    names = {r.parameters.get("table", "cube") for r in scene.regions if r.material == "foam"}
+    if len(names) != 1 or next(iter(names)).endswith(".csv"):
+        raise ValueError(f"the scene's foam regions use the tables {sorted(names)}: pass the samples CSV their "
+                         "mean table was aggregated from (samples_csv, --samples)")
+    return table_paths(names.pop())["samples"]
 
 
 @dataclass
@@ -193,8 +205,9 @@ def run_with_uncertainty(source, out_dir: str | os.PathLike | None = None, *,
         Outputs of the nominal run (as :func:`~fenicsfoam.scene.run_scene`); ``summary.json`` then also holds
         ``probes_std`` per step and the per-seed values (written atomically on rank 0). ``None`` writes nothing.
     samples_csv
-        Per-seed samples (default: the shipped ``foam_table_samples.csv``). The nominal run always uses the
-        scene's table (the shipped mean table), so pass the samples the mean table was aggregated from.
+        Per-seed samples (default: the samples of the shipped table the scene's foam regions name, ``table``,
+        by default ``foam_table_samples.csv``). The nominal run always uses the scene's table, so pass the
+        samples that table was aggregated from.
     comm
         MPI communicator (default ``MPI.COMM_WORLD``).
 
@@ -208,7 +221,6 @@ def run_with_uncertainty(source, out_dir: str | os.PathLike | None = None, *,
 
     from fenicsfoam.scene import Scene, load_scene, parse_scene, run_scene
     from fenicsfoam.solver import ConvergenceError
-    from homogenization.tables import SAMPLES_CSV
 
     comm = MPI.COMM_WORLD if comm is None else comm
     scene = source if isinstance(source, Scene) else load_scene(source)
@@ -227,7 +239,7 @@ def run_with_uncertainty(source, out_dir: str | os.PathLike | None = None, *,
             tables = None
             if comm.rank == 0:
                 try:
-                    tables = seed_tables(SAMPLES_CSV if samples_csv is None else samples_csv, tmp)
+                    tables = seed_tables(_default_samples(scene) if samples_csv is None else samples_csv, tmp)
                 except (OSError, ValueError) as exc:  # raised on every rank below
                     tables = exc
             tables = comm.bcast(tables, root=0)

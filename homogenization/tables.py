@@ -1,8 +1,9 @@
 """Homogenized foam tables: C_hom against relative density × anisotropy γ × seed (paper Fig. 4).
 
-One *sample* is one foam ``meshes.foam.VoronoiFoam(n_cells, density, gamma, seed)`` voxelized at ``N``³ and
-homogenized by :func:`homogenization.fft.homogenize_fft` (rotated scheme, ``scheme="pcg"``: the iterates of the
-strain CG ``"cg"`` with which the shipped table was made, at half the FFT work) with an isotropic solid of
+One *sample* is one foam ``meshes.foam.VoronoiFoam(n_cells, density, gamma, seed, box=, distance=)`` voxelized
+with cubic voxels (``N`` along the longest box edge) and homogenized in its periodic box by
+:func:`homogenization.fft.homogenize_fft` (rotated scheme, ``scheme="pcg"``: the iterates of the strain CG
+``"cg"`` with which the shipped tables were made, at half the FFT work) with an isotropic solid of
 ``E_s = 1`` and ``ν_s = 0.3`` and a void of zero stiffness, so every modulus in the table is already
 normalised by the solid's Young's modulus (it scales linearly with ``E_s``; ``ν_s`` is fixed).
 
@@ -12,6 +13,12 @@ engineering constants (E1..E3, G23, G13, G12, ν_ij), the closest transversely i
 error ``ti_error``), the closest isotropic one (``iso_E, iso_nu, iso_error``), the CG iterations, the wall
 time and the software version. :func:`aggregate` reduces the samples to the mean and the sample standard
 deviation over seeds per (density, γ); ``fenicsfoam.materials.foam_material`` interpolates that table.
+
+Every sweep setting of box and foam writes a table of its own name (:attr:`SweepSettings.name`,
+:func:`table_paths`): ``cube`` (the Euclidean strut foam in the unit cube, ``foam_table.csv``, the default),
+``equiaxed`` (the same foam in the box ``(γ, 1, 1)``, ``foam_table_equiaxed.csv``), ``equiaxed_polyhedral`` (the
+polyhedral wall foam), each with its samples and provenance. :func:`shipped_tables` lists those in
+:data:`DATA_DIR`.
 
 The sweep (:func:`run_sweep`) caches every finished sample as one JSON file named after all its inputs
 (written to a temporary file and renamed, so a file present is complete): an interrupted sweep resumes where it
@@ -25,6 +32,7 @@ import csv
 import json
 import logging
 import os
+import re
 import time
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass
@@ -58,12 +66,14 @@ SCHEME = "pcg"
 DATA_DIR = Path(__file__).parent / "data"
 SAMPLES_CSV = DATA_DIR / "foam_table_samples.csv"
 TABLE_CSV = DATA_DIR / "foam_table.csv"
+#: Foams with a table: the Euclidean strut foam and the polyhedral (gauge) wall foam.
+FOAMS = ("euclidean", "polyhedral")
 
 ENGINEERING = ("E1", "E2", "E3", "G23", "G13", "G12", "nu12", "nu13", "nu21", "nu23", "nu31", "nu32")
 TI_FIT = ("ti_E_t", "ti_E_l", "ti_nu_t", "ti_nu_tl", "ti_G_l", "ti_error")
 ISO_FIT = ("iso_E", "iso_nu", "iso_error")
 C_ENTRIES = tuple(f"C{i + 1}{j + 1}" for i in range(6) for j in range(i, 6))
-INPUTS = ("density", "gamma", "seed", "n_cells", "resolution", "tol")
+INPUTS = ("density", "gamma", "seed", "distance", "box", "n_cells", "resolution", "tol")
 SAMPLE_COLUMNS = (INPUTS + ("measured_density", "radius") + C_ENTRIES + ENGINEERING + TI_FIT + ISO_FIT
                   + ("iterations", "wall_s", "version"))
 #: Columns averaged over seeds by :func:`aggregate` (mean and ``<name>_std``).
@@ -79,17 +89,41 @@ class SweepSettings:
     n_cells
         Voronoi cells per RVE.
     resolution
-        FFT grid ``N`` (voxels per side).
+        FFT grid ``N``: voxels along the longest box edge (voxels are cubic, :meth:`VoronoiFoam.grid_shape`).
     tol
         CG tolerance on the relative equilibrium residual.
+    box
+        ``"cube"`` (the unit cube) or ``"equiaxed"`` (``(γ, 1, 1)``: about ``n_cells^(1/3)`` cells across every
+        direction at every γ; ``resolution`` must then give integer ``γ N``).
+    distance
+        One of :data:`FOAMS`: ``"euclidean"`` (struts) or ``"polyhedral"`` (walls, the default polytope).
+    maxiter
+        CG iterations per load case (``None``: the solver's default, 1000); thin voxel walls need more.
 
     """
 
     n_cells: int = 8
     resolution: int = 48
     tol: float = 1e-4
+    box: str = "cube"
+    distance: str = "euclidean"
+    maxiter: int | None = None
+
+    @property
+    def name(self) -> str:
+        """The table's name (:func:`table_paths`).
+
+        ``"cube"`` for the Euclidean foam in the unit cube, else ``<box>`` (Euclidean) or ``<box>_<distance>``.
+        """
+        if (self.box, self.distance) == ("cube", "euclidean"):
+            return "cube"
+        return self.box if self.distance == "euclidean" else f"{self.box}_{self.distance}"
 
     def __post_init__(self):
+        if self.box not in ("cube", "equiaxed"):
+            raise InputError(f"box must be 'cube' or 'equiaxed', got {self.box!r}")
+        if self.distance not in FOAMS:
+            raise InputError(f"distance must be one of {FOAMS}, got {self.distance!r}")
         if int(self.n_cells) != self.n_cells or self.n_cells < 2:
             raise InputError(f"n_cells must be an integer >= 2, got {self.n_cells!r}")
         if int(self.resolution) != self.resolution or self.resolution < 8:
@@ -115,8 +149,31 @@ def grid(densities: Iterable[float] = DENSITIES, gammas: Iterable[float] = GAMMA
 
 def cache_name(sample: Sample, settings: SweepSettings) -> str:
     """File name of a sample's cache entry: every input that changes its result."""
-    return (f"d{sample.density:.4f}_g{sample.gamma:.4f}_s{sample.seed}_n{settings.n_cells}"
+    foam = "" if (settings.box, settings.distance) == ("cube", "euclidean") else f"{settings.distance}_{settings.box}_"
+    return (f"{foam}d{sample.density:.4f}_g{sample.gamma:.4f}_s{sample.seed}_n{settings.n_cells}"
             f"_N{settings.resolution}_tol{settings.tol:.0e}.json")
+
+
+def table_paths(name: str = "cube", directory: str | os.PathLike = DATA_DIR) -> dict[str, Path]:
+    """The ``samples``, ``table`` (aggregated) and ``provenance`` files of the table ``name`` in ``directory``.
+
+    ``name`` is :attr:`SweepSettings.name` of the sweep that wrote it: ``"cube"`` is the historical table
+    (``foam_table.csv``), any other name ``foam_table_<name>.csv``.
+    """
+    if not (isinstance(name, str) and re.fullmatch(r"[a-z0-9_]+", name)):
+        raise InputError(f"a foam table name is lower-case letters, digits and '_', got {name!r}")
+    stem = "foam_table" if name == "cube" else f"foam_table_{name}"
+    d = Path(directory)
+    return {"samples": d / f"{stem}_samples.csv", "table": d / f"{stem}.csv",
+            "provenance": d / f"{stem}_provenance.json"}
+
+
+def shipped_tables() -> tuple[str, ...]:
+    """Names of the tables shipped in :data:`DATA_DIR` (``foam_material(..., table=name)`` reads them)."""
+    names = ["cube" if p.stem == "foam_table" else p.stem.removeprefix("foam_table_")
+             for p in sorted(DATA_DIR.glob("foam_table*.csv"))
+             if not p.stem.endswith("_samples") and not p.stem.startswith("foam_table_seed")]
+    return tuple(sorted(names))
 
 
 def _version() -> str:
@@ -136,12 +193,14 @@ def homogenize_sample(sample: Sample, settings: SweepSettings, threads: int | No
     from meshes.foam import VoronoiFoam
 
     start = time.perf_counter()
-    foam = VoronoiFoam(settings.n_cells, sample.density, sample.gamma, seed=sample.seed)
+    foam = VoronoiFoam(settings.n_cells, sample.density, sample.gamma, seed=sample.seed,
+                       box=None if settings.box == "cube" else settings.box, distance=settings.distance)
     image = foam.voxelize(settings.resolution).astype(np.int8)
     r = homogenize_fft(image, [np.zeros((6, 6)), isotropic_voigt(1.0, NU_SOLID)], scheme=SCHEME,
-                       discretization="rotated", tol=settings.tol, threads=threads)
-    row = {"density": sample.density, "gamma": sample.gamma, "seed": sample.seed, "n_cells": settings.n_cells,
-           "resolution": settings.resolution, "tol": settings.tol,
+                       discretization="rotated", tol=settings.tol, threads=threads, box=tuple(foam.box),
+                       maxiter=settings.maxiter)
+    row = {"density": sample.density, "gamma": sample.gamma, "seed": sample.seed, "distance": settings.distance,
+           "box": settings.box, "n_cells": settings.n_cells, "resolution": settings.resolution, "tol": settings.tol,
            "measured_density": float(foam.measured_density), "radius": float(foam.radius)}
     row.update({name: float(r.C[int(name[1]) - 1, int(name[2]) - 1]) for name in C_ENTRIES})
     row.update(engineering_constants(r.C))
@@ -262,12 +321,14 @@ def read_csv(path: str | os.PathLike) -> dict[str, np.ndarray]:
     return out
 
 
-def write_tables(rows: Sequence[dict], out_dir: str | os.PathLike, provenance: dict) -> dict[str, Path]:
-    """Write ``foam_table_samples.csv``, ``foam_table.csv`` (aggregated) and ``foam_table_provenance.json``."""
+def write_tables(rows: Sequence[dict], out_dir: str | os.PathLike, provenance: dict,
+                 name: str = "cube") -> dict[str, Path]:
+    """Write the table ``name``'s samples, aggregated table and provenance (:func:`table_paths`) into ``out_dir``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    return {"samples": to_csv(rows, out / SAMPLES_CSV.name), "table": to_csv(aggregate(rows), out / TABLE_CSV.name),
-            "provenance": write_json_atomic(out / "foam_table_provenance.json", provenance)}
+    paths = table_paths(name, out)
+    return {"samples": to_csv(rows, paths["samples"]), "table": to_csv(aggregate(rows), paths["table"]),
+            "provenance": write_json_atomic(paths["provenance"], provenance)}
 
 
 def settings_dict(settings: SweepSettings) -> dict:

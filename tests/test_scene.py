@@ -114,6 +114,17 @@ def test_foam_region_is_validated_before_the_tables_are_needed():
         parse_scene(scene)
 
 
+def test_foam_region_table_is_a_shipped_name_or_an_existing_csv(tmp_path):
+    scene = beam_scene(material="foam", density=0.18, gamma=0.1, E_solid=12e6, nu_solid=0.3, table="cube")
+    assert parse_scene(scene).regions[0].parameters["table"] == "cube"
+    scene["regions"]["beam"]["table"] = "no_such"
+    with pytest.raises(SceneError, match=r"^regions\.beam\.table: 'no_such' is not a shipped foam table"):
+        parse_scene(scene)
+    scene["regions"]["beam"]["table"] = "missing.csv"
+    with pytest.raises(SceneError, match=r"^regions\.beam\.table: no foam table file .*missing\.csv"):
+        parse_scene(scene, base=tmp_path)
+
+
 def test_foam_region_without_tables_is_a_scene_error(monkeypatch):
     monkeypatch.delattr(materials, "foam_material", raising=False)
     scene = beam_scene(material="foam", density=0.18, gamma=0.1, E_solid=12e6, nu_solid=0.3)

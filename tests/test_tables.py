@@ -117,3 +117,43 @@ def test_sweep_distributed_over_ranks_matches_serial(tmp_path):
     if comm.rank == 0:
         serial = tables.run_sweep(samples, TINY, cache / "serial", MPI.COMM_SELF, progress=False)
         assert _strip_time(rows) == _strip_time(serial)
+
+
+def _rows_at(table, keep):
+    names = list(table)
+    idx = [i for i in range(len(table["density"])) if keep(table["density"][i], table["gamma"][i])]
+    return [{n: float(table[n][i]) for n in names} for i in idx]
+
+
+def test_a_table_of_one_density_is_exact_at_its_nodes_and_named_tables_resolve(table, tmp_path):
+    """A selectable table computed for one density only (two γ): foam_material reads it by path and returns
+    the CSV row's constants; outside its one density it refuses, naming the table."""
+    path = tables.to_csv(_rows_at(table, lambda d, g: d == 0.18 and g in (0.1, 1.0)), tmp_path / "t.csv")
+    i = int(np.flatnonzero((table["density"] == 0.18) & (table["gamma"] == 0.1))[0])
+    m = foam_material(0.18, 0.1, E_TPU, 0.3, table=path)
+    np.testing.assert_allclose([m.E_t, m.E_l, m.G_l, m.nu_t], [E_TPU * table["ti_E_t"][i], E_TPU * table["ti_E_l"][i],
+                                                               E_TPU * table["ti_G_l"][i], table["ti_nu_t"][i]],
+                               rtol=1e-12)
+    with pytest.raises(ValueError, match=r"density = 0.2 is outside the tabulated range \[0.18, 0.18\] .*t\.csv"):
+        foam_material(0.2, 0.1, E_TPU, 0.3, table=path)
+    assert foam_material(0.18, 0.1, E_TPU, 0.3, table="cube") == foam_material(0.18, 0.1, E_TPU, 0.3)
+    assert "cube" in tables.shipped_tables()
+    with pytest.raises(ValueError, match=r"table = 'no_such' is not a shipped foam table"):
+        foam_material(0.18, 0.1, E_TPU, 0.3, table="no_such")
+
+
+def test_a_table_that_is_not_a_full_grid_is_refused(table, tmp_path):
+    path = tables.to_csv(_rows_at(table, lambda d, g: (d, g) in ((0.18, 0.1), (0.18, 1.0), (0.22, 1.0))),
+                         tmp_path / "ragged.csv")
+    with pytest.raises(ValueError, match=r"is not a full \(density, gamma\) grid"):
+        foam_material(0.18, 1.0, E_TPU, 0.3, table=path)
+
+
+def test_sweep_settings_name_their_table():
+    assert tables.SweepSettings().name == "cube"
+    assert tables.SweepSettings(box="equiaxed").name == "equiaxed"
+    assert tables.SweepSettings(box="equiaxed", distance="polyhedral").name == "equiaxed_polyhedral"
+    assert tables.table_paths("cube")["table"] == tables.TABLE_CSV
+    assert tables.table_paths("equiaxed", "/d")["samples"].as_posix() == "/d/foam_table_equiaxed_samples.csv"
+    with pytest.raises(ValueError, match=r"box must be 'cube' or 'equiaxed', got 'long'"):
+        tables.SweepSettings(box="long")

@@ -220,6 +220,23 @@ def _calibrated_E_solid(region: _Table, base: Path | None) -> float:
         raise SceneError(f"{spec.key('calibration')}: {exc}") from exc
 
 
+def _foam_table_name(region: _Table, base: Path | None) -> str:
+    """A foam region's ``table``: a shipped table's name, or a ``.csv`` path (relative to the scene file)."""
+    from homogenization.tables import shipped_tables
+
+    value = region.string("table")
+    if value.endswith(".csv"):
+        path = Path(value)
+        path = path if path.is_absolute() or base is None else base / path
+        if not path.is_file():
+            raise SceneError(f"{region.key('table')}: no foam table file {str(path)!r}")
+        return str(path)
+    if value not in shipped_tables():
+        raise SceneError(f"{region.key('table')}: {value!r} is not a shipped foam table {shipped_tables()} nor a "
+                         ".csv path")
+    return value
+
+
 def _read_region(name: str, table: _Table, named: Mapping[str, tuple[int, ...]], base: Path | None = None
                  ) -> Region:
     tags = _tags(table.raw("tags", required=True), table.key("tags"), named, "region")
@@ -230,6 +247,8 @@ def _read_region(name: str, table: _Table, named: Mapping[str, tuple[int, ...]],
                   for key, (required, default) in MATERIAL_KEYS[material].items()}
     if material == "foam":
         parameters["fit"] = table.string("fit", default="transverse", choices=FOAM_FITS)
+        if "table" in table.data:
+            parameters["table"] = _foam_table_name(table, base)
     table.done()
     return Region(name, tags, material, parameters)
 
