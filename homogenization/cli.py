@@ -377,6 +377,11 @@ def _table_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cells", type=int, default=tables.SweepSettings.n_cells, help="Voronoi cells per RVE")
     p.add_argument("--resolution", type=int, default=tables.SweepSettings.resolution, help="voxels per side N")
     p.add_argument("--tol", type=float, default=tables.SweepSettings.tol, help="FFT (CG) tolerance")
+    p.add_argument("--box", choices=("cube", "equiaxed"), default=tables.SweepSettings.box,
+                   help="RVE box: the unit cube or (gamma, 1, 1); --resolution counts voxels along y and z")
+    p.add_argument("--distance", choices=tables.FOAMS, default=tables.SweepSettings.distance,
+                   help="foam: euclidean struts or polyhedral walls")
+    p.add_argument("--maxiter", type=int, default=None, help="CG iterations per load case (default: solver's)")
     p.add_argument("--threads", type=int, default=None,
                    help="FFTW threads per rank; None: CPUs / ranks (more than the CPUs: a warning)")
 
@@ -401,7 +406,10 @@ def _table_check(parser: argparse.ArgumentParser, args: argparse.Namespace) -> N
             tables.SweepSettings(**{key: getattr(args, option[2:])})
         except ValueError as exc:
             parser.error(f"{option}: {exc}")
-    args.settings = tables.SweepSettings(n_cells=args.cells, resolution=args.resolution, tol=args.tol)
+    if args.maxiter is not None and args.maxiter < 1:
+        parser.error(f"--maxiter must be >= 1, got {args.maxiter}")
+    args.settings = tables.SweepSettings(n_cells=args.cells, resolution=args.resolution, tol=args.tol, box=args.box,
+                                         distance=args.distance, maxiter=args.maxiter)
     check_output_dir(args.out, "--out")
     if args.cache is not None:
         check_output_dir(args.cache, "--cache")
@@ -432,9 +440,10 @@ def _table(args: argparse.Namespace) -> int:
                   "ranks": comm.size, "wall_s_this_run": wall,
                   "sample_wall_s_total": float(sum(r["wall_s"] for r in rows)), "n_samples": len(rows),
                   "settings": tables.settings_dict(settings)}
-    paths = tables.write_tables(rows, args.out, provenance)
+    paths = tables.write_tables(rows, args.out, provenance, settings.name)
     table = tables.aggregate(rows)
-    print(f"{len(rows)} samples, {len(table)} (density, gamma) points; N = {settings.resolution}, "
+    print(f"{len(rows)} samples, {len(table)} (density, gamma) points; table {settings.name!r}, "
+          f"N = {settings.resolution}, "
           f"n_cells = {settings.n_cells}, tol = {settings.tol:g}; this run {wall:.0f} s on {comm.size} rank(s)")
     print(tables.format_table(table))
     print("written:", ", ".join(str(p) for p in paths.values()))
