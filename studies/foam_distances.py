@@ -26,6 +26,7 @@ from pathlib import Path
 
 import matplotlib
 import numpy as np
+from mpi4py import MPI
 
 from homogenization.tables import to_csv
 from meshes.foam import VoronoiFoam
@@ -68,11 +69,18 @@ def main(argv=None) -> int:
     p.add_argument("--pixels", type=int, default=500, help="pixels per unit length of the sections")
     p.add_argument("--ci", action="store_true")
     a = p.parse_args(argv)
+    rank0 = MPI.COMM_WORLD.rank == 0
     n_cells, ppu, gammas = (8, 60, (1.0,)) if a.ci else (27, a.pixels, GAMMAS)
     a.out.mkdir(parents=True, exist_ok=True)
     foams = {(d, g): VoronoiFoam(n_cells, 0.18, g, seed=1, box="equiaxed", distance=d)
              for d in DISTANCES for g in gammas}
     rows = [describe(f, d) for (d, _), f in foams.items()]
+    failures = [f"{r['distance']} γ = {r['gamma']}: density {r['measured_density']:.4f}" for r in rows
+                if abs(r["measured_density"] - r["density"]) > 0.002]
+    failures += [f"polyhedral γ = {r['gamma']}: overhang {r['max_overhang_deg']:.1f}° > 45°" for r in rows
+                 if r["distance"] == "polyhedral" and r["max_overhang_deg"] > 45.0 + 1e-9]
+    if not rank0:
+        return 1 if failures else 0
     print(f"{'distance':>10} {'gamma':>5} {'radius':>8} {'|cos x|':>7} {'|cos y|':>7} {'|cos z|':>7} "
           f"{'fab_xx':>6} {'fab_yy':>6} {'fab_zz':>6} {'area/V':>7} {'overhang':>8}")
     for r in rows:
@@ -115,7 +123,9 @@ def main(argv=None) -> int:
         for path in (png, png2):
             shutil.copyfile(path, DOCS_IMG / path.name)
     print(f"wrote {png}, {png2}, {a.out / 'foam_distances.csv'}")
-    return 0
+    for f in failures:
+        print(f"FAILED: {f}")
+    return 1 if failures else 0
 
 
 if __name__ == "__main__":

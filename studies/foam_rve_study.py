@@ -137,7 +137,7 @@ def report_resolution(rows: list[dict]) -> list[dict]:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("study", choices=("size", "resolution"))
+    p.add_argument("study", choices=("size", "resolution"), nargs="?", default="size")
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--cache", type=Path, default=None, help="sample cache (default OUT/cache)")
     p.add_argument("--distance", choices=tables.FOAMS, default="euclidean")
@@ -167,6 +167,10 @@ def main(argv=None) -> int:
         if summary:
             tables.to_csv(summary, a.out / f"{a.study}_summary.csv")
         print(f"wrote {a.out / (a.study + '.csv')}")
+        off = [r for r in rows if abs(r["measured_density"] - r["density"]) > 0.002]
+        if off:
+            print(f"FAILED: {len(off)} samples miss their density by more than 0.002")
+            return 1
     return 0
 
 
