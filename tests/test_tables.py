@@ -157,3 +157,19 @@ def test_sweep_settings_name_their_table():
     assert tables.table_paths("equiaxed", "/d")["samples"].as_posix() == "/d/foam_table_equiaxed_samples.csv"
     with pytest.raises(ValueError, match=r"box must be 'cube' or 'equiaxed', got 'long'"):
         tables.SweepSettings(box="long")
+
+
+def test_shipped_equiaxed_table_is_resolved_and_read_by_name():
+    """The `equiaxed` table: 27 cells in the box (γ, 1, 1), ≥ 3 seeds per node, every strut at least 3.85 voxels
+    across, every sample at its density; foam_material(table="equiaxed") returns its rows."""
+    assert "equiaxed" in tables.shipped_tables()
+    paths = tables.table_paths("equiaxed")
+    samples, table = tables.read_csv(paths["samples"]), tables.read_csv(paths["table"])
+    assert set(samples["box"]) == {"equiaxed"} and set(samples["n_cells"]) == {27}
+    assert np.all(2 * samples["radius"] * samples["resolution"] >= 3.85)
+    assert np.all(np.abs(samples["measured_density"] - samples["density"]) < 0.002)
+    assert np.all(table["n_seeds"] >= 3)
+    for i in range(len(table["density"])):
+        m = foam_material(table["density"][i], table["gamma"][i], E_TPU, 0.3, table="equiaxed")
+        np.testing.assert_allclose([m.E_t, m.G_l], [E_TPU * table["ti_E_t"][i], E_TPU * table["ti_G_l"][i]],
+                                   rtol=1e-10)
