@@ -60,7 +60,8 @@ def richardson(h: np.ndarray, q: np.ndarray) -> tuple[float, float]:
     """``(q0, p)`` of ``q = q0 + c h^p`` through the three finest points (``h`` decreasing).
 
     ``p`` solves ``(q2 − q1)/(q3 − q2) = (h1^p − h2^p)/(h2^p − h3^p)`` (bisection on [0.25, 4]); when the three
-    values are not monotone no order exists and ``p = 1`` is assumed (first order, the voxel staircase).
+    values are not monotone or no order in [0.25, 4] fits (increments that do not shrink: not yet asymptotic),
+    ``p = 1`` is assumed (first order, the voxel staircase) and the estimate is only indicative.
     """
     (h1, h2, h3), (q1, q2, q3) = h[-3:], q[-3:]
     ratio = (q2 - q1) / (q3 - q2) if q3 != q2 else np.inf
@@ -70,8 +71,8 @@ def richardson(h: np.ndarray, q: np.ndarray) -> tuple[float, float]:
         def f(p):
             return (h1**p - h2**p) / (h2**p - h3**p) - ratio
         lo, hi = 0.25, 4.0
-        if f(lo) * f(hi) > 0:
-            p = lo if abs(f(lo)) < abs(f(hi)) else hi
+        if f(lo) * f(hi) > 0:        # no order in [0.25, 4] fits (e.g. increments that grow): first order
+            p = 1.0
         else:
             for _ in range(60):
                 mid = 0.5 * (lo + hi)
