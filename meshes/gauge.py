@@ -33,10 +33,9 @@ below; the build direction is +z. Its constraints, and what they ask of the foam
   the smallest ``k`` for which a fourth-order (elasticity) tensor with that symmetry is transversely isotropic
   about z, i.e. the γ = 1 foam has no preferred direction in the layer plane; a square base would make it
   tetragonal.
-* **equiaxed cells at γ = 1**: the apex height ``a`` sets how tall the cells are; with ``b = ρ = 1``, the mean
-  second moment of the cells (64 cells, 4 seeds, 3·10⁵ samples each) is isotropic at ``a = 1.04 ± 0.03``
-  (``studies/polytope_shape.py``), so ``a = b = ρ = 1``: the hexagonal pyramid whose apex height, base depth and
-  base inradius are equal.
+* **cells about as tall as wide at γ = 1**: the apex height ``a`` sets how tall the cells are; ``a = b = ρ = 1``
+  (the hexagonal pyramid whose apex height, base depth and base inradius are equal, the site at mid-height) is
+  the choice, not a calibration.
 * **anisotropy γ**: the polytope is shrunk by γ along x (a horizontal axis, as the layer plane is the only one
   in which a deformation keeps the walls printable): ``P_γ = diag(γ, 1, 1) P``, ``ν_i → diag(1/γ, 1, 1) ν_i``.
   Cells are then flattened along x; shrinking along a horizontal axis only steepens the walls.
