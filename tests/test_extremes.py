@@ -297,11 +297,13 @@ def test_beam_refinement_p1_converges_to_p2(locking_beam):
 # --------------------------------------------------------------------------------------------------
 def test_flat_cells_too_few_raise_foam_parameter_error():
     """γ = 0.05 with 8 cells: stretched by 1/γ the cells are (1/(0.05·8))^(1/3) = 1.36 × the y–z period wide and
-    the periodic diagram does not close; the error names γ, n_cells and the bounds n_cells ≥ 1/γ, γ ≥ 1/n_cells."""
+    the periodic diagram does not close; the error names γ, n_cells, the box, the bound n_cells ≥ 1/γ and the
+    equiaxed box (which keeps the stretched cells equiaxed at any γ)."""
     from meshes.foam import FoamParameterError, VoronoiFoam
 
-    with pytest.raises(FoamParameterError, match=r"gamma=0.05 is too flat for n_cells=8: .* width .* = 1\.36 .*"
-                                                 r"n_cells ≥ about 1/gamma = 20 .* gamma ≥ about 1/n_cells = 0\.125"):
+    with pytest.raises(FoamParameterError, match=r"gamma=0.05 is too flat for n_cells=8 in the box \(1.0, 1.0, 1.0\)"
+                                                 r": .* width is 1\.36 .*n_cells ≥ about 1/gamma = 20 .*"
+                                                 r"box='equiaxed'"):
         VoronoiFoam(n_cells=8, density=0.18, gamma=0.05, seed=1)
 
 
@@ -315,7 +317,7 @@ def test_flat_cells_gamma_005_builds_gamma_002_needs_more_cells():
     foam = VoronoiFoam(n_cells=20, density=0.18, gamma=0.05, seed=1)
     assert foam.summary.mean_abs_cos[0] < 0.25 < min(foam.summary.mean_abs_cos[1:])
     assert foam.measured_density == pytest.approx(0.18, abs=3 * foam.density_stderr + 1e-3)
-    with pytest.raises(FoamParameterError, match=r"gamma=0.02 is too flat for n_cells=20: .* 1/gamma = 50"):
+    with pytest.raises(FoamParameterError, match=r"gamma=0.02 is too flat for n_cells=20 in the box .* 1/gamma = 50"):
         VoronoiFoam(n_cells=20, density=0.18, gamma=0.02, seed=1)
     flat = VoronoiFoam(n_cells=40, density=0.18, gamma=0.02, seed=1)
     assert flat.summary.mean_abs_cos[0] < foam.summary.mean_abs_cos[0]
