@@ -27,9 +27,11 @@ __all__ = [
     "HANDEDNESS",
     "OrientationError",
     "cell_function",
+    "cell_values",
     "from_callable",
     "owned_cell_tags",
     "per_tag",
+    "set_cell_values",
     "spiral_directions",
     "uniform",
 ]
@@ -73,11 +75,31 @@ def cell_function(mesh: Mesh, values: np.ndarray, name: str | None = None) -> fe
     else:
         V = fem.VectorFunctionSpace(mesh, ("DG", 0), dim=values.shape[1])
     f = fem.Function(V, name=name)
+    set_cell_values(f, values)
+    return f
+
+
+def cell_values(f: fem.Function) -> np.ndarray:
+    """The values of a DG0 function on the owned cells: ``(n_owned,)`` or ``(n_owned, k)`` (inverse of the above)."""
+    V = f.function_space
+    n = _num_owned_cells(V.mesh)
     bs = V.dofmap.index_map_bs
+    dofs = V.dofmap.list.array.reshape(-1, V.dofmap.dof_layout.num_dofs)[:n, 0]
+    values = f.x.array.reshape(-1, bs)[dofs]
+    return values[:, 0].copy() if bs == 1 else values.copy()
+
+
+def set_cell_values(f: fem.Function, values: np.ndarray) -> None:
+    """Write ``values`` (one row per owned cell) into the DG0 function ``f``; ghost cells by ``scatter_forward``."""
+    V = f.function_space
+    n = _num_owned_cells(V.mesh)
+    bs = V.dofmap.index_map_bs
+    values = np.asarray(values, dtype=float)
+    if values.size != n * bs:
+        raise InputError(f"expected {n} x {bs} values for the {n} owned cells, got shape {values.shape}")
     dofs = V.dofmap.list.array.reshape(-1, V.dofmap.dof_layout.num_dofs)[:n, 0]
     f.x.array.reshape(-1, bs)[dofs] = values.reshape(n, bs)
     f.x.scatter_forward()
-    return f
 
 
 def owned_cell_tags(mesh: Mesh, cell_tags: MeshTagsMetaClass) -> np.ndarray:

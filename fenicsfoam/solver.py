@@ -276,6 +276,9 @@ class ElasticityProblem:
         if dP is not None:  # exact tangent: add the change of R with u
             jacobian += ufl.inner(dP, ufl.grad(v)) * dx_stress
         self._jacobian = fem.form(jacobian)
+        #: the UFL residual form (test function ``v``) and its exact Jacobian (trial function ``du``; with the
+        #: rotation term of the corotational model), unconstrained: what sensitivities differentiate
+        self.residual_form, self.jacobian_form = residual, jacobian
         self._det_F = fem.Expression(ufl.det(deformation_gradient(self.u)), self._inversion_points(mesh))
 
         self.motions = {m.name: MotionBC(self.V, m) for m in motions}
@@ -557,6 +560,50 @@ class ElasticityProblem:
     def snes(self) -> PETSc.SNES:
         """The SNES solver (options prefix as given to the constructor)."""
         return self._snes
+
+    @property
+    def bcs(self) -> list[fem.DirichletBCMetaClass]:
+        """The Dirichlet conditions of the motions, at their current values."""
+        return list(self._bcs)
+
+    def assemble_tangent(self, A: PETSc.Mat | None = None) -> PETSc.Mat:
+        """The exact Jacobian of the residual at the current ``u``, constrained rows and columns made identity.
+
+        ``[[J_ff, 0], [0, I]]`` (``f``: free dofs): the matrix of the Newton correction at a state that meets
+        the Dirichlet conditions, and of the adjoint equations (:mod:`fenicsfoam.sensitivity`). The rotation
+        field is updated from ``u`` first. ``A`` is reused if given (the pattern of :meth:`snes`'s matrix).
+        """
+        if A is None:
+            A = create_matrix(self._jacobian, self._A.getType())
+        self.u.x.scatter_forward()
+        if self.rotation is not None:
+            self.rotation.update()
+        self._assemble_jacobian(A, self._bcs, 1.0)
+        return A
+
+    def snapshot(self) -> tuple[np.ndarray, LoadState]:
+        """The current state: a copy of ``u``'s local values (owned and ghost) and the load state."""
+        return self.u.x.array.copy(), self.loads
+
+    def restore(self, state: tuple[np.ndarray, LoadState]) -> None:
+        """Go back to a state of :meth:`snapshot` (of this problem, on this rank)."""
+        values, loads = state
+        self.u.x.array[:] = values
+        self.loads = loads
+        self._apply_loads(loads)
+        self._synced = (None, None)
+        if self.rotation is not None:
+            self.rotation.update()
+
+    def reset(self) -> None:
+        """Back to the reference state: ``u = 0``, every load (gravity factor, angles, translations) zero."""
+        self.u.x.array[:] = 0.0
+        self.loads = LoadState(gravity=0.0, angles=dict.fromkeys(self.motions, 0.0),
+                               translations={n: np.zeros(3) for n in self.motions})
+        self._apply_loads(self.loads)
+        self._synced = (None, None)
+        if self.rotation is not None:
+            self.rotation.update()
 
     def min_det_F(self) -> float:
         """Smallest ``det F`` over quadrature points and vertices of all cells (collective)."""
