@@ -11,6 +11,8 @@ located), then called on any displacement :class:`dolfinx.fem.Function` of that 
   ``∫_Ω_c (X + u)_z dx / ∫_Ω_c dx`` over the reference region.
 * :class:`CenterRotation` — Tripod: rotation about the vertical axis of the best-fit rigid rotation of the
   central ring's nodes (degrees, counter-clockwise seen from above (+z) positive).
+* :class:`CenterTilt` — Tripod: tilt of the same best-fit rotation about the x or the y axis (degrees), read from
+  the ring's turned normal ``n = R e_z``: about x ``atan2(−n_y, n_z)``, about y ``atan2(n_x, n_z)``.
 
 Probes of any named group (a facet group or a cell region), the scene probes ``"KIND:GROUP"``; vectors are
 numpy arrays of 3 components:
@@ -28,6 +30,12 @@ numpy arrays of 3 components:
 Every value is summed over ranks (``comm.allreduce``), so all ranks return the same number under ``mpirun``.
 The functions :func:`tip_deflection`, :func:`center_height` and :func:`center_rotation` build the probe and
 call it once, for one-off use.
+
+Every probe also has ``gradient(u)``: the derivative of its value with respect to the displacement's degrees of
+freedom (the owned ones, in the dof layout of ``u.x.array``), exact for the discrete functional (the best-fit
+rotation differentiated through its polar decomposition, :func:`kabsch_rotation_gradient`); sensitivities
+(:mod:`fenicsfoam.sensitivity`) use it as the right-hand side of the adjoint equations. Its forms are compiled
+at the first call, so a probe that is only evaluated costs nothing more.
 """
 
 from __future__ import annotations
@@ -38,9 +46,11 @@ from collections.abc import Sequence
 
 import dolfinx
 import dolfinx.fem
+import dolfinx.fem.petsc
 import numpy as np
 import ufl
 from mpi4py import MPI
+from petsc4py import PETSc
 
 from foambase.errors import InputError
 
@@ -48,6 +58,7 @@ __all__ = [
     "BestFitRotation",
     "CenterHeight",
     "CenterRotation",
+    "CenterTilt",
     "EnclosedVolume",
     "MeanDisplacement",
     "ReactionForce",
@@ -55,6 +66,8 @@ __all__ = [
     "center_height",
     "center_rotation",
     "kabsch_rotation",
+    "kabsch_rotation_gradient",
+    "tilt_angle",
     "tip_deflection",
     "twist_angle",
 ]
@@ -115,7 +128,9 @@ class _ScalarProbe:
     def __init__(self, V: dolfinx.fem.FunctionSpace, integrand, measure: ufl.Measure) -> None:
         self._u = dolfinx.fem.Function(V)
         self._comm = V.mesh.comm
-        self._form = dolfinx.fem.form(integrand(self._u) * measure)
+        self._functional = integrand(self._u) * measure
+        self._form = dolfinx.fem.form(self._functional)
+        self._gradient_form = None  # compiled at the first gradient()
         self.size = self._assemble(dolfinx.fem.form(dolfinx.fem.Constant(V.mesh, 1.0) * measure))
 
     def _assemble(self, form: dolfinx.fem.Form) -> float:
@@ -129,6 +144,20 @@ class _ScalarProbe:
         self._u.x.array[:n_owned] = u.x.array[:n_owned]
         self._u.x.scatter_forward()
         return self._assemble(self._form) / self.size
+
+    def gradient(self, u: dolfinx.fem.Function) -> np.ndarray:
+        """Derivative of the value with respect to the owned dofs of ``u`` (the form's derivative, assembled)."""
+        V = self._u.function_space
+        _check_same_space(u, V)
+        self(u)  # copies u into the form's coefficient
+        if self._gradient_form is None:
+            self._gradient_form = dolfinx.fem.form(
+                ufl.derivative(self._functional, self._u, ufl.TestFunction(V)))
+        b = dolfinx.fem.petsc.assemble_vector(self._gradient_form)
+        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        gradient = b.array.copy() / self.size
+        b.destroy()
+        return gradient
 
 
 class TipDeflection(_ScalarProbe):
@@ -201,6 +230,39 @@ def kabsch_rotation(H: np.ndarray) -> np.ndarray:
     return Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
 
 
+def _axial(M: np.ndarray) -> np.ndarray:
+    """Axial vector of the skew part of ``M``: ``[axial(M)]× = (M − Mᵀ)/2``."""
+    return 0.5 * np.array([M[2, 1] - M[1, 2], M[0, 2] - M[2, 0], M[1, 0] - M[0, 1]])
+
+
+def _cross_matrix(w: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+
+
+def kabsch_rotation_gradient(H: np.ndarray, dfdR: np.ndarray, R: np.ndarray | None = None) -> np.ndarray:
+    """``∂f/∂H`` of a function ``f(R)`` of the best-fit rotation ``R = kabsch_rotation(H)``, given ``∂f/∂R``.
+
+    ``R`` is the rotation of the polar decomposition ``Hᵀ = R P`` (``P = Rᵀ Hᵀ`` symmetric positive
+    definite). A change ``dH`` turns it by ``dR = R [ω]×`` with ``(tr P I − P) ω = 2 axial(Rᵀ dHᵀ)`` (the skew
+    part of ``Rᵀ dHᵀ = [ω]× P + dP``), hence ``df = ∂f/∂R : dR = 4 a · axial(Rᵀ dHᵀ)`` with
+    ``a = (tr P I − P)⁻¹ axial(Rᵀ ∂f/∂R)``, i.e. ``∂f/∂H = −2 [a]× Rᵀ``. Defined when the best fit is proper
+    (``det H > 0``) and the points are not collinear (``tr P I − P`` invertible).
+    """
+    H = np.asarray(H, dtype=float)
+    R = kabsch_rotation(H) if R is None else R
+    P = R.T @ H.T
+    P = 0.5 * (P + P.T)
+    B = np.trace(P) * np.eye(3) - P
+    a = np.linalg.solve(B, _axial(R.T @ np.asarray(dfdR, dtype=float)))
+    return -2.0 * _cross_matrix(a) @ R.T
+
+
+def _atan2_gradient(s: float, c: float) -> tuple[float, float, float]:
+    """``atan2(s, c)`` and its partial derivatives with respect to ``s`` and ``c``."""
+    r2 = s * s + c * c
+    return math.atan2(s, c), c / r2, -s / r2
+
+
 def twist_angle(R: np.ndarray) -> float:
     """Twist (rad) about e_z of a rotation, from its swing–twist decomposition ``R = R_swing R_twist``.
 
@@ -212,6 +274,38 @@ def twist_angle(R: np.ndarray) -> float:
     if math.hypot(s, c) < 1e-10:
         raise InputError("twist about z undefined: the rotation turns e_z upside down (swing of 180°)")
     return math.atan2(s, c)
+
+
+def _twist_and_gradient(R: np.ndarray) -> tuple[float, np.ndarray]:
+    """:func:`twist_angle` (rad) and its derivative with respect to ``R``."""
+    psi = twist_angle(R)
+    _, ds, dc = _atan2_gradient(R[1, 0] - R[0, 1], R[0, 0] + R[1, 1])
+    G = np.zeros((3, 3))
+    G[1, 0], G[0, 1], G[0, 0], G[1, 1] = ds, -ds, dc, dc
+    return psi, G
+
+
+def tilt_angle(R: np.ndarray, axis: str) -> float:
+    """Tilt (rad) about the x or y axis of a rotation, read from the turned normal ``n = R e_z``.
+
+    About x: ``atan2(−n_y, n_z)``; about y: ``atan2(n_x, n_z)`` (a rotation by α about x, resp. y, tilts by α;
+    a twist about e_z does not tilt). Undefined when ``n`` is horizontal along the other axis.
+    """
+    return _tilt_and_gradient(R, axis)[0]
+
+
+def _tilt_and_gradient(R: np.ndarray, axis: str) -> tuple[float, np.ndarray]:
+    """:func:`tilt_angle` (rad) and its derivative with respect to ``R``."""
+    if axis not in ("x", "y"):
+        raise InputError(f"tilt axis must be 'x' or 'y', got {axis!r}")
+    row, sign = (1, -1.0) if axis == "x" else (0, 1.0)
+    s, c = sign * R[row, 2], R[2, 2]
+    if math.hypot(s, c) < 1e-10:
+        raise InputError(f"tilt about {axis} undefined: the normal R e_z lies along the other horizontal axis")
+    angle, ds, dc = _atan2_gradient(s, c)
+    G = np.zeros((3, 3))
+    G[row, 2], G[2, 2] = sign * ds, dc
+    return angle, G
 
 
 class _NodeFit:
@@ -246,9 +340,12 @@ class _NodeFit:
 
     def rotation_matrix(self, u: dolfinx.fem.Function) -> np.ndarray:
         """The best-fit rotation ``R`` (3×3) of the nodes for the displacement ``u``, same on every rank."""
+        return kabsch_rotation(self._cross_covariance(u))
+
+    def _cross_covariance(self, u: dolfinx.fem.Function) -> np.ndarray:
         _check_same_space(u, self._V)
         x = self._dX + u.x.array.reshape(-1, 3)[self._nodes]
-        return kabsch_rotation(self._allreduce(self._dX.T @ x))
+        return self._allreduce(self._dX.T @ x)
 
 
 class BestFitRotation(_NodeFit):
@@ -311,9 +408,51 @@ class CenterRotation(_NodeFit):
                              f"dimension {cell_tags.dim}")
         super().__init__(V, cell_tags, ring_tag, "cell")
 
+    def _angle(self, R: np.ndarray) -> tuple[float, np.ndarray]:
+        """The probe's angle (rad) of the best-fit rotation ``R``, and its derivative with respect to ``R``."""
+        return _twist_and_gradient(R)
+
     def __call__(self, u: dolfinx.fem.Function) -> float:
         """Twist about e_z (degrees) of the best-fit rotation for the displacement ``u``."""
-        return math.degrees(twist_angle(self.rotation_matrix(u)))
+        return math.degrees(self._angle(self.rotation_matrix(u))[0])
+
+    def gradient(self, u: dolfinx.fem.Function) -> np.ndarray:
+        """Derivative of the angle (degrees) with respect to the owned dofs of ``u``.
+
+        With ``H = Σ (X − X̄) xᵀ``, ``∂angle/∂u_i = (X_i − X̄)ᵀ ∂angle/∂H`` at each node of the fit
+        (:func:`kabsch_rotation_gradient`), zero elsewhere.
+        """
+        H = self._cross_covariance(u)
+        R = kabsch_rotation(H)
+        _, dR = self._angle(R)
+        dH = kabsch_rotation_gradient(H, dR, R)
+        V = self._V
+        gradient = np.zeros((V.dofmap.index_map.size_local, 3))
+        gradient[self._nodes] = math.degrees(1.0) * (self._dX @ dH)
+        return gradient.ravel()
+
+
+class CenterTilt(CenterRotation):
+    """Tilt about the x or y axis of a region's best-fit rotation (deg), e.g. of the Tripod's probe ring.
+
+    The fit is the one of :class:`CenterRotation`; the tilt is :func:`tilt_angle` of it, by the right-hand rule:
+    a positive tilt about x raises the ring's +y side (its normal ``R e_z`` leans towards −y), a positive tilt
+    about y lowers its +x side (the normal leans towards +x). A twist about e_z does not change either tilt.
+    Parameters as :class:`CenterRotation`, plus ``axis`` (``"x"`` or ``"y"``).
+    """
+
+    def __init__(self, V: dolfinx.fem.FunctionSpace, cell_tags, ring_tag: Tags, axis: str) -> None:
+        if axis not in ("x", "y"):
+            raise InputError(f"tilt axis must be 'x' or 'y', got {axis!r}")
+        super().__init__(V, cell_tags, ring_tag)
+        self.axis = axis
+
+    def _angle(self, R: np.ndarray) -> tuple[float, np.ndarray]:
+        return _tilt_and_gradient(R, self.axis)
+
+    def __call__(self, u: dolfinx.fem.Function) -> float:
+        """Tilt about the probe's axis (degrees) of the best-fit rotation for the displacement ``u``."""
+        return math.degrees(self._angle(self.rotation_matrix(u))[0])
 
 
 class _VectorProbe:

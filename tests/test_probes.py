@@ -1,4 +1,5 @@
-"""fenicsfoam.probes: exact values for uniform, quadratic and rigid displacements; invariances; error paths."""
+"""fenicsfoam.probes: exact values for uniform, quadratic and rigid displacements; invariances; gradients by their
+Taylor remainders; error paths."""
 
 import math
 
@@ -12,10 +13,13 @@ from mpi4py import MPI
 from fenicsfoam.probes import (
     CenterHeight,
     CenterRotation,
+    CenterTilt,
     TipDeflection,
     center_height,
     center_rotation,
     kabsch_rotation,
+    kabsch_rotation_gradient,
+    tilt_angle,
     tip_deflection,
     twist_angle,
 )
@@ -193,3 +197,70 @@ def test_errors_name_the_problem(box, space):
     wrong = dolfinx.fem.Function(dolfinx.fem.VectorFunctionSpace(mesh, ("CG", 3)))
     with pytest.raises(ValueError, match="another mesh or element than the probe's"):
         probe(wrong)
+
+
+@pytest.mark.parametrize("angle_deg", [25.0, -40.0, 80.0])
+def test_tilts_of_rigid_rotations_about_x_and_y(space, box, angle_deg):
+    # A rotation by α about x tilts by α about x and not about y (and vice versa), whatever twist follows or
+    # precedes it about e_z (the normal R e_z does not see the twist), and whatever translation.
+    _, cell_tags, _ = box
+    alpha, twist = math.radians(angle_deg), rotation([0, 0, 1], math.radians(70.0))
+    cases = (("x", "y", rotation([1, 0, 0], alpha) @ twist), ("y", "x", rotation([0, 1, 0], alpha) @ twist))
+    for axis, other, R in cases:
+        u = interpolate(space, rigid(R, [0.2, 0.1, 0.0], [0.3, -0.1, 0.5]))
+        assert CenterTilt(space, cell_tags, CENTRE, axis)(u) == pytest.approx(angle_deg, abs=1e-10)
+        assert CenterTilt(space, cell_tags, CENTRE, other)(u) == pytest.approx(0.0, abs=1e-10)
+    # tilt_angle directly: the twist on either side leaves the normal's tilts unchanged
+    swing = rotation([math.cos(0.4), math.sin(0.4), 0.0], math.radians(30.0))
+    for axis in ("x", "y"):
+        assert tilt_angle(swing @ twist, axis) == pytest.approx(tilt_angle(swing, axis), abs=1e-14)
+    # small swings: the tilts are the swing's rotation-vector components (to second order)
+    eps = 1e-4
+    small = rotation([0.6, 0.8, 0.0], eps)
+    assert tilt_angle(small, "x") == pytest.approx(0.6 * eps, rel=1e-7)
+    assert tilt_angle(small, "y") == pytest.approx(0.8 * eps, rel=1e-7)
+    with pytest.raises(ValueError, match="tilt axis"):
+        tilt_angle(small, "z")
+
+
+def test_kabsch_rotation_gradient_taylor():
+    # f(R) = sum(W * R) for a fixed W: the remainder of f(R(H + h dH)) − f(R(H)) − h ∂f/∂H : dH is O(h²).
+    rng = np.random.default_rng(7)
+    X = rng.normal(size=(30, 3))
+    X -= X.mean(axis=0)
+    x = X @ rotation([0.3, -0.5, 0.8], 1.1).T + 0.2 * rng.normal(size=(30, 3))
+    H, dH, W = X.T @ x, rng.normal(size=(3, 3)), rng.normal(size=(3, 3))
+    G = kabsch_rotation_gradient(H, W)
+    f0 = np.sum(W * kabsch_rotation(H))
+    steps = 1e-2 / 2.0 ** np.arange(5)
+    remainders = [abs(np.sum(W * kabsch_rotation(H + h * dH)) - f0 - h * np.sum(G * dH)) for h in steps]
+    rates = np.log2(np.array(remainders[:-1]) / remainders[1:])
+    assert rates.min() > 1.95, rates
+
+
+def test_probe_gradients_have_second_order_taylor_remainders(space, box):
+    # At a non-rigid displacement (large rotation + stretch), along a smooth direction: the rotation and tilt
+    # probes' remainders fall as h² (rate 2); the linear probes' (height, tip) are at round-off.
+    mesh, cell_tags, facet_tags = box
+    R = rotation([0.3, 0.4, 0.85], 0.8)
+    u0 = interpolate(space, lambda x: (R - np.eye(3)) @ x + 0.05 * np.vstack([x[1] ** 2, x[0] * x[2], x[0] ** 2]))
+    du = interpolate(space, lambda x: np.vstack([np.sin(2 * x[1]), x[0] * x[1], np.cos(x[0]) * x[2] + x[1]]))
+    u = dolfinx.fem.Function(space)
+    n = space.dofmap.index_map.size_local * 3
+    probes = {"height": CenterHeight(space, cell_tags, CENTRE), "tip": TipDeflection(space, facet_tags, TIP, (1, 2, 3)),
+              "rotation": CenterRotation(space, cell_tags, CENTRE),
+              "tilt_x": CenterTilt(space, cell_tags, [CENTRE, OUTER], "x"),
+              "tilt_y": CenterTilt(space, cell_tags, CENTRE, "y")}
+    steps = 1e-2 / 2.0 ** np.arange(4)
+    for name, probe in probes.items():
+        j0 = probe(u0)
+        slope = MPI.COMM_WORLD.allreduce(float(np.dot(probe.gradient(u0), du.x.array[:n])))
+        remainders = []
+        for h in steps:
+            u.x.array[:] = u0.x.array + h * du.x.array
+            remainders.append(abs(probe(u) - j0 - h * slope))
+        if name in ("height", "tip"):
+            assert max(remainders) < 1e-13 * max(1.0, abs(slope)), (name, remainders)
+        else:
+            rates = np.log2(np.array(remainders[:-1]) / remainders[1:])
+            assert abs(slope) > 1.0 and rates.min() > 1.9, (name, slope, rates)
