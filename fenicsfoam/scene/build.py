@@ -15,6 +15,8 @@ probe kinds their probes (:mod:`fenicsfoam.scene.kinds`). Modelling choices:
 * *Mesh checks* (:mod:`fenicsfoam.meshcheck`), right after meshing: a warning if the mesh is not metre-sized
   (smaller than 1 mm or larger than 100 m across), and one if ``degree = 1`` leaves fewer than 3 elements through
   the thinnest dimension (P1 locks in bending; ``degree = 2`` is the default).
+* *Offset*: ``orientation.offset_deg`` turns every cell's l axis about the vertical by that angle after the kind
+  has built it (counter-clockwise seen from above); a design parameter.
 """
 
 from __future__ import annotations
@@ -144,7 +146,13 @@ def _build_orientation(scene: Scene, mesh, cell_tags):
         except orient.OrientationError as exc:
             raise SceneError(f"orientation: {exc}") from exc
     # a user's function may fail on some ranks' cells only: every rank stops with the same error
-    return on_every_rank(mesh.comm, build, "the orientation field failed")
+    field = on_every_rank(mesh.comm, build, "the orientation field failed")
+    offset = math.radians(spec.get("offset_deg", 0.0))
+    if offset:
+        a = orient.cell_values(field)
+        c, s = math.cos(offset), math.sin(offset)
+        orient.set_cell_values(field, np.column_stack([c * a[:, 0] - s * a[:, 1], s * a[:, 0] + c * a[:, 1], a[:, 2]]))
+    return field
 
 
 # --------------------------------------------------------------------------------------------------

@@ -306,6 +306,7 @@ def _read_orientation(scene: _Table, mesh: MeshInfo) -> dict[str, Any] | None:
         if function.count(":") != 1:
             raise SceneError(f"{table.key('function')}: expected 'module:function', got {function!r}")
         spec["function"] = function
+    spec["offset_deg"] = table.number("offset_deg", default=0.0)
     table.done()
     return spec
 
