@@ -86,12 +86,23 @@ def _center_rotation(context: BuildContext):
     return CenterRotation(context.V, context.tagged.cell_tags, RING)
 
 
+def _center_tilt(axis: str):
+    def build(context: BuildContext):
+        from fenicsfoam.probes import CenterTilt
+        from meshes.tripod import RING
+        return CenterTilt(context.V, context.tagged.cell_tags, RING, axis)
+    return build
+
+
 #: The probes a scene may list (documented in :mod:`fenicsfoam.probes`; *tip_deflection* is measured along ``−ĝ``,
-#: so a sagging tip is negative; *center_height*, *center_rotation* use the Tripod's probe ring).
+#: so a sagging tip is negative; *center_height*, *center_rotation*, *center_tilt_x*, *center_tilt_y* use the
+#: Tripod's probe ring).
 PROBE_KINDS: dict[str, ProbeKind] = {
     "tip_deflection": ProbeKind("tip", "m", _tip_deflection, along_gravity=True),
     "center_height": ProbeKind("tripod", "m", _center_height),
     "center_rotation": ProbeKind("tripod", "deg", _center_rotation),
+    "center_tilt_x": ProbeKind("tripod", "deg", _center_tilt("x")),
+    "center_tilt_y": ProbeKind("tripod", "deg", _center_tilt("y")),
 }
 #: Probe names and what they need: a facet group named "tip" (the beam's, or a mesh file's) or the Tripod.
 PROBES: dict[str, str] = {name: kind.needs for name, kind in PROBE_KINDS.items()}
