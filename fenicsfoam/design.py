@@ -1,0 +1,386 @@
+"""A scene as a differentiable function of its parameters: set parameters, solve, evaluate probes and their gradients.
+
+:class:`SceneDesign` builds a scene once and then maps named parameters to its probes at the last load step:
+
+=========================  ===================================================================================
+parameter                  meaning (unit)
+=========================  ===================================================================================
+``servo0`` … ``servo2``    the Tripod's horn angles of the *last* step (deg); earlier steps as written
+``E_solid``                the solid's Young's modulus of every foam region, changed together (Pa)
+``density:REGION``         the relative density of a foam region given as a number (also through a blend)
+``gamma:REGION``           the anisotropy γ of such a region
+``density``, ``gamma``     per-cell fields over the foam cells (one value per owned cell; NaN elsewhere)
+``orientation``            per-cell in-plane angle (deg) added to every cell's *l* axis: ``R_z(φ_c) a_c``
+``orientation.offset_deg`` one in-plane angle (deg) added to every *l* axis (the scene's ``offset_deg``; for
+                           case A: the arm offset angle of the l axes from the arms)
+``orientation.pitch_deg``  the pitch of a spiral orientation (deg)
+=========================  ===================================================================================
+
+The *l* axis of a cell is ``a_c = R_z(offset + φ_c) a⁰_c(pitch)``, ``a⁰`` the scene's field without offset;
+``∂a/∂φ = e_z × a`` (per radian) and for the spiral ``∂a⁰/∂p = cos p e_r − h sin p e_θ``
+(:func:`fenicsfoam.orientation.spiral_directions`). Material parameters act through the DG0 moduli and mass
+density of :class:`fenicsfoam.grading.CellMaterials` (the foam table's exact derivatives); servo angles through
+the Dirichlet values. :meth:`SceneDesign.gradient` chains the adjoint's per-cell gradients
+(:mod:`fenicsfoam.sensitivity`) to the parameters: one factorization and one adjoint solve per probe, whatever the
+number of parameters. Per-cell parameters and their gradients are arrays over the owned cells (their global
+order: :meth:`SceneDesign.gather`).
+
+A *scene solve* (:meth:`SceneDesign.solve`) runs the whole schedule from the reference state;
+:meth:`SceneDesign.solve_last` only moves the last step's servo angles from the current equilibrium (the
+equilibrium of the last step does not depend on the path, so warm starting gives the same state as a full run,
+up to the solver tolerance). Both count in :attr:`SceneDesign.solves`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+from mpi4py import MPI
+
+from foambase.errors import InputError
+
+__all__ = ["OrientationDesign", "SceneDesign", "SERVOS"]
+
+logger = logging.getLogger(__name__)
+
+#: The servo parameters (the Tripod's three horns), in order.
+SERVOS = ("servo0", "servo1", "servo2")
+_EZ = np.array([0.0, 0.0, 1.0])
+
+
+def _rotate_z(a: np.ndarray, angle_rad: np.ndarray) -> np.ndarray:
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.column_stack([c * a[:, 0] - s * a[:, 1], s * a[:, 0] + c * a[:, 1], a[:, 2]])
+
+
+class OrientationDesign:
+    """The *l*-axis field of a scene as a function of its offset, its spiral pitch and a per-cell angle field."""
+
+    def __init__(self, spec: Mapping[str, Any], field, mesh):
+        from dolfinx.mesh import compute_midpoints
+
+        from fenicsfoam.orientation import cell_values
+
+        self.spec = dict(spec)
+        self.field = field
+        self.offset_deg = float(self.spec.get("offset_deg", 0.0))
+        self.pitch_deg = float(self.spec["pitch_deg"]) if self.spec["kind"] == "spiral" else None
+        n = mesh.topology.index_map(mesh.topology.dim).size_local
+        self.angle_deg = np.zeros(n)
+        self._midpoints = compute_midpoints(mesh, mesh.topology.dim, np.arange(n, dtype=np.int32))
+        self._base = _rotate_z(cell_values(field), np.full(n, -math.radians(self.offset_deg)))
+
+    def base(self) -> np.ndarray:
+        """``a⁰``: the field without offset and per-cell angles (the spiral at the current pitch)."""
+        if self.pitch_deg is None:
+            return self._base
+        from fenicsfoam.orientation import spiral_directions
+        return spiral_directions(self._midpoints, self.pitch_deg, self.spec["handedness"], self.spec["center"])
+
+    def directions(self) -> np.ndarray:
+        """The *l* axis per owned cell, ``R_z(offset + φ_c) a⁰_c``."""
+        return _rotate_z(self.base(), np.radians(self.offset_deg + self.angle_deg))
+
+    def apply(self) -> None:
+        """Write :meth:`directions` into the DG0 orientation field."""
+        from fenicsfoam.orientation import set_cell_values
+        set_cell_values(self.field, self.directions())
+
+    def d_angle(self) -> np.ndarray:
+        """``∂a_c/∂φ_c`` per degree (n, 3): ``e_z × a_c · π/180``."""
+        return np.cross(_EZ, self.directions()) * (math.pi / 180.0)
+
+    def d_pitch(self) -> np.ndarray:
+        """``∂a_c/∂p`` per degree of spiral pitch (n, 3)."""
+        if self.pitch_deg is None:
+            raise InputError("orientation.pitch_deg: the scene's orientation is not a spiral")
+        from fenicsfoam.orientation import HANDEDNESS
+        p, h = math.radians(self.pitch_deg), HANDEDNESS[self.spec["handedness"]]
+        r = self._midpoints[:, :2] - np.asarray(self.spec["center"], dtype=float)
+        norm = np.linalg.norm(r, axis=1, keepdims=True)
+        e_r = np.divide(r, norm, out=np.zeros_like(r), where=norm > 0)
+        e_t = np.column_stack([-e_r[:, 1], e_r[:, 0]])
+        d = math.cos(p) * e_r - h * math.sin(p) * e_t
+        d0 = np.column_stack([d, np.zeros(len(d))])
+        return _rotate_z(d0, np.radians(self.offset_deg + self.angle_deg)) * (math.pi / 180.0)
+
+
+class SceneDesign:
+    """A scene built once, whose parameters can be set and whose probes can be solved for and differentiated.
+
+    Parameters
+    ----------
+    source
+        A scene (TOML path, dict or parsed :class:`~fenicsfoam.scene.Scene`).
+    comm
+        MPI communicator (default ``MPI.COMM_WORLD``).
+    probes
+        Probe kinds (:data:`fenicsfoam.scene.PROBE_KINDS`) wanted besides the scene's own (e.g. the tilts).
+
+    """
+
+    def __init__(self, source, comm=None, probes: Sequence[str] = ()):
+        from fenicsfoam.grading import CellMaterials
+        from fenicsfoam.scene import PROBE_KINDS, Scene, load_scene
+        from fenicsfoam.scene.build import build_model
+        from fenicsfoam.scene.kinds import BuildContext
+
+        self.comm = MPI.COMM_WORLD if comm is None else comm
+        scene = source if isinstance(source, Scene) else load_scene(source)
+        for name in probes:
+            if name not in PROBE_KINDS:
+                raise InputError(f"unknown probe {name!r}; valid: {', '.join(PROBE_KINDS)}")
+            if PROBE_KINDS[name].needs == "tripod" and scene.builder != "tripod":
+                raise InputError(f"probe {name!r} needs the tripod builder, the scene uses {scene.builder!r}")
+        self.scene = scene
+        self.model = build_model(scene, self.comm)
+        self.problem = problem = self.model.problem
+        tagged = self.model.tagged
+        mesh, cell_tags = tagged.mesh, tagged.cell_tags
+        context = BuildContext(scene, tagged, problem.V)
+        self.probes = dict(self.model.probes)
+        for name in probes:
+            if name not in self.probes:
+                self.probes[name] = PROBE_KINDS[name].build(context)
+        self.cells = CellMaterials.from_regions(mesh, cell_tags, scene.regions, blends=getattr(scene, "blends", ()))
+        if tuple(problem.material.moduli) != self.cells.names:
+            raise InputError(f"the scene's moduli {tuple(problem.material.moduli)} differ from the per-cell ones "
+                             f"{self.cells.names}")
+        self.cells.update(problem.material)  # the values of the differentiable path (equal up to round-off)
+        self.orientation = (OrientationDesign(scene.orientation, problem.orientation, mesh)
+                            if problem.orientation is not None else None)
+        self.steps = list(self.model.steps)
+        self.solves = 0
+        self._adjoint = None
+        self.n_cells = mesh.topology.index_map(mesh.topology.dim).size_local
+
+    # ----------------------------------------------------------------------------------------------
+    # Parameters
+    # ----------------------------------------------------------------------------------------------
+    @property
+    def servos(self) -> tuple[str, ...]:
+        """The servo parameters of the scene (empty without ``loads.servos``)."""
+        return SERVOS if self.scene.servos else ()
+
+    def parameters(self) -> list[str]:
+        """The parameter names this scene has (module docstring)."""
+        names = list(self.servos)
+        if self.cells.foams:
+            names += ["E_solid", "density", "gamma"]
+            for region, spec in self.cells.descriptions.items():
+                names += [f"{key}:{region}" for key in ("density", "gamma")
+                          if isinstance(spec[key], int | float) and not isinstance(spec[key], bool)]
+        if self.orientation is not None:
+            names += ["orientation", "orientation.offset_deg"]
+            if self.orientation.pitch_deg is not None:
+                names.append("orientation.pitch_deg")
+        return names
+
+    def _check(self, name: str) -> None:
+        if name not in self.parameters():
+            raise InputError(f"unknown parameter {name!r} for scene {self.scene.name!r}; valid: "
+                             f"{', '.join(self.parameters())}")
+
+    def _foam_mask(self) -> np.ndarray:
+        mask = np.zeros(self.n_cells, dtype=bool)
+        for foam in self.cells.foams.values():
+            mask[foam.cells] = True
+        return mask
+
+    def get(self, name: str):
+        """The current value of a parameter (a float, or an array over the owned cells)."""
+        self._check(name)
+        if name in SERVOS:
+            return self.servo_deg()[SERVOS.index(name)]
+        if name == "E_solid":
+            values = {f.E_solid for f in self.cells.foams.values()}
+            if len(values) != 1:
+                raise InputError(f"E_solid: the foam regions have different E_solid {sorted(values)}")
+            return values.pop()
+        if name in ("density", "gamma"):
+            out = np.full(self.n_cells, np.nan)
+            for foam in self.cells.foams.values():
+                out[foam.cells] = getattr(foam, name)
+            return out
+        if ":" in name:
+            key, region = name.split(":", 1)
+            return float(self.cells.descriptions[region][key])
+        if name == "orientation":
+            return self.orientation.angle_deg.copy()
+        return self.orientation.offset_deg if name == "orientation.offset_deg" else self.orientation.pitch_deg
+
+    def set(self, values: Mapping[str, Any]) -> None:
+        """Set parameters (``{name: value}``) and update the coefficient data; solve afterwards."""
+        for name in values:
+            self._check(name)
+        material, orientation = False, False
+        servo = list(self.servo_deg()) if any(n in SERVOS for n in values) else None
+        for name, value in values.items():
+            if name in SERVOS:
+                servo[SERVOS.index(name)] = float(value)
+            elif name == "E_solid":
+                for foam in self.cells.foams.values():
+                    foam.E_solid = float(value)
+                material = True
+            elif name in ("density", "gamma"):
+                value = np.asarray(value, dtype=float)
+                for foam in self.cells.foams.values():
+                    setattr(foam, name, value[foam.cells].copy())
+                material = True
+            elif ":" in name:
+                key, region = name.split(":", 1)
+                self.cells.set_region_value(key, region, float(value))
+                material = True
+            elif name == "orientation":
+                self.orientation.angle_deg = np.asarray(value, dtype=float).reshape(self.n_cells).copy()
+                orientation = True
+            elif name == "orientation.offset_deg":
+                self.orientation.offset_deg = float(value)
+                orientation = True
+            else:
+                self.orientation.pitch_deg = float(value)
+                orientation = True
+        if servo is not None:
+            self.set_servo_deg(servo)
+        if material:
+            self.cells.update(self.problem.material)
+        if orientation:
+            self.orientation.apply()
+
+    def servo_deg(self) -> tuple[float, float, float]:
+        """The last step's servo angles (deg); those in force before it where it gives none."""
+        if not self.servos:
+            raise InputError(f"scene {self.scene.name!r} has no servos (loads.servos = true)")
+        angles = [0.0, 0.0, 0.0]
+        for step in self.steps:
+            for i, name in enumerate(SERVOS):
+                if name in step.angles:
+                    angles[i] = math.degrees(step.angles[name])
+        return tuple(angles)
+
+    def set_servo_deg(self, angles: Sequence[float]) -> None:
+        """Set the last step's servo angles (deg)."""
+        from dataclasses import replace
+        last = self.steps[-1]
+        self.steps[-1] = replace(last, angles={n: math.radians(float(a)) for n, a in zip(SERVOS, angles)})
+
+    # ----------------------------------------------------------------------------------------------
+    # Solves
+    # ----------------------------------------------------------------------------------------------
+    def values(self) -> dict[str, float]:
+        """The probes at the current state."""
+        return {name: float(probe(self.problem.u)) for name, probe in self.probes.items()}
+
+    def solve(self) -> dict[str, float]:
+        """Run the whole schedule from the reference state; the probes at the last step (one scene solve)."""
+        self.problem.reset()
+        self.solves += 1
+        for step in self.steps:
+            self.problem.solve_step(step)
+        return self.values()
+
+    def solve_last(self, angles: Sequence[float], increment_deg: float = 10.0) -> dict[str, float]:
+        """Move the last step's servo angles to ``angles`` (deg) from the current equilibrium (one scene solve).
+
+        The current state must be an equilibrium of the last step (after :meth:`solve` or :meth:`solve_last`).
+        The move takes ``ceil(max |Δθ| / increment_deg)`` increments (halved on failure by the solver).
+        """
+        from fenicsfoam.solver import LoadStep
+        current = np.degrees([self.problem.loads.angles[n] for n in SERVOS])
+        change = float(np.max(np.abs(np.asarray(angles, dtype=float) - current)))
+        self.set_servo_deg(angles)
+        self.solves += 1
+        self.problem.solve_step(LoadStep(self.steps[-1].label, angles=self.steps[-1].angles,
+                                         increments=max(1, math.ceil(change / increment_deg - 1e-9))))
+        return self.values()
+
+    # ----------------------------------------------------------------------------------------------
+    # Gradients
+    # ----------------------------------------------------------------------------------------------
+    @property
+    def adjoint(self):
+        """The adjoint solver (:class:`fenicsfoam.sensitivity.Adjoint`), built at the first use."""
+        if self._adjoint is None:
+            from fenicsfoam.sensitivity import Adjoint
+            self._adjoint = Adjoint(self.problem, prefix="design_adjoint_")
+        return self._adjoint
+
+    def gradient(self, probes: Sequence[str], parameters: Sequence[str]) -> dict[str, dict[str, Any]]:
+        """``{probe: {parameter: d probe / d parameter}}`` at the current equilibrium, by the adjoint.
+
+        Scalars for scalar parameters, arrays over the owned cells for per-cell ones (zero where a cell's
+        parameter has no effect, e.g. the density of a cell of fixed material). Collective.
+        """
+        for name in parameters:
+            self._check(name)
+        for name in probes:
+            if name not in self.probes:
+                raise InputError(f"probe {name!r} is not built (probes: {sorted(self.probes)})")
+        from fenicsfoam.sensitivity import material_coefficients
+
+        material = [p for p in parameters if p not in SERVOS and not p.startswith("orientation")]
+        oriented = [p for p in parameters if p.startswith("orientation")]
+        coefficients = material_coefficients(self.problem)
+        fields = {}
+        if material:
+            fields.update({n: c for n, c in coefficients.items() if n != "orientation"})
+            derivatives = self.cells.derivatives()
+        if oriented:
+            fields["orientation"] = coefficients["orientation"]
+        motions = [p for p in parameters if p in SERVOS]
+        adjoint = self.adjoint
+        adjoint.factor()
+        result = {}
+        comm = self.comm
+        for name in probes:
+            g = adjoint.gradient(self.probes[name], fields, motions)
+            out: dict[str, Any] = {}
+            for p in motions:
+                out[p] = g.motions[p] * math.pi / 180.0
+            if material:
+                per_cell = {k: sum(g.fields[n] * derivatives[k][n] for n in derivatives[k])
+                            for k in ("density", "gamma", "E_solid")}
+                for p in material:
+                    if p in ("density", "gamma"):
+                        out[p] = per_cell[p]
+                    elif p == "E_solid":
+                        out[p] = comm.allreduce(float(np.sum(per_cell["E_solid"])))
+                    else:
+                        key, region = p.split(":", 1)
+                        out[p] = comm.allreduce(float(np.sum(per_cell[key] * self.cells.region_derivative(key,
+                                                                                                         region))))
+            if oriented:
+                per_cell = np.einsum("ck,ck->c", g.fields["orientation"], self.orientation.d_angle())
+                for p in oriented:
+                    if p == "orientation":
+                        out[p] = per_cell
+                    elif p == "orientation.offset_deg":
+                        out[p] = comm.allreduce(float(np.sum(per_cell)))
+                    else:
+                        out[p] = comm.allreduce(float(np.sum(np.einsum("ck,ck->c", g.fields["orientation"],
+                                                                       self.orientation.d_pitch()))))
+            result[name] = out
+        return result
+
+    # ----------------------------------------------------------------------------------------------
+    def gather(self, values: np.ndarray) -> np.ndarray:
+        """A per-cell array over the owned cells → the global array (ranks' cells in order) on every rank."""
+        return np.concatenate(self.comm.allgather(np.asarray(values)))
+
+    def scatter(self, values: np.ndarray) -> np.ndarray:
+        """The inverse of :meth:`gather`: this rank's part of a global per-cell array."""
+        counts = self.comm.allgather(self.n_cells)
+        start = int(np.sum(counts[:self.comm.rank]))
+        return np.asarray(values)[start:start + self.n_cells]
+
+    def write_orientation_picture(self, path: str | os.PathLike, title: str = "") -> None:
+        """A top view of the *l* axes (the scene outputs' orientation picture) at ``path`` (rank 0 writes)."""
+        from pathlib import Path
+
+        from fenicsfoam.plotting import plot_orientation
+        plot_orientation(self.problem.orientation, Path(path), title=title or f"{self.scene.name}: l axis")
