@@ -736,8 +736,10 @@ def _is_number(value) -> bool:
 
 
 def blend_log(a: float, b: float, weight: np.ndarray) -> np.ndarray:
-    """``exp((1 − β) log a + β log b)``."""
-    return np.exp((1.0 - weight) * math.log(a) + weight * math.log(b))
+    """``exp((1 − β) log a + β log b)`` (exactly ``a`` where β = 0 and ``b`` where β = 1)."""
+    weight = np.asarray(weight, dtype=float)
+    mixed = np.exp((1.0 - weight) * math.log(a) + weight * math.log(b))
+    return np.where(weight == 0.0, a, np.where(weight == 1.0, b, mixed))
 
 
 def as_material(material) -> object:

@@ -165,7 +165,7 @@ def test_file_errors_name_the_file_and_toml_line(tmp_path):
 def test_shipped_scenes_are_valid():
     names = sorted(p.stem for p in SCENES.glob("*.toml"))
     assert names == ["beam_iso", "beam_ti_y", "beam_ti_z", "finger_blocked", "finger_cable", "finger_pneumatic",
-                     "tripod_case_a", "tripod_case_b", "tripod_silicone"]
+                     "tripod_case_a", "tripod_case_a_graded", "tripod_case_b", "tripod_silicone"]
     for path in SCENES.glob("*.toml"):
         assert load_scene(path).name == path.stem
 

@@ -77,16 +77,49 @@ def resolve_material(region: Region):
             raise SceneError(f"{path}: foam regions need fenicsfoam.materials.foam_material (the homogenized "
                              "tables), which this installation lacks; use explicit constants")
         params = dict(region.parameters)
-        return foam_material(params.pop("density"), params.pop("gamma"), params.pop("E_solid"),
-                             params.pop("nu_solid"), **params)
+        density, gamma = (_representative(params.pop(key), key) for key in ("density", "gamma"))
+        for key in ("density", "gamma"):  # every per-tag value is checked against the table before meshing
+            spec = region.parameters[key]
+            for value in spec.get("per_tag", {}).values() if isinstance(spec, dict) else ():
+                foam_material(value if key == "density" else density, value if key == "gamma" else gamma,
+                              params["E_solid"], params["nu_solid"], **{k: params[k] for k in ("rho_solid", "fit")})
+        return foam_material(density, gamma, params.pop("E_solid"), params.pop("nu_solid"), **params)
     except (InadmissibleMaterialError, ValueError) as exc:
         if isinstance(exc, SceneError):
             raise
         raise key_error(path, region.parameters, str(exc)) from exc
 
 
+def _representative(spec, key: str) -> float:
+    """The value of a foam field that stands for its region before meshing (its material's kind, the summary).
+
+    The number, a per-tag table's first value, or for a function the middle of the foam table's range
+    (arithmetic for density, geometric for γ).
+    """
+    if not isinstance(spec, dict):
+        return spec
+    if "per_tag" in spec:
+        return next(iter(spec["per_tag"].values()))
+    from fenicsfoam.grading import FoamTable
+    lo, hi = getattr(FoamTable(), f"{key}_range")
+    return 0.5 * (lo + hi) if key == "density" else math.sqrt(lo * hi)
+
+
 def _material_record(material) -> dict[str, Any]:
     return {"type": type(material).__name__, **asdict(material)}
+
+
+def _graded_record(region: Region, material, cells, comm) -> dict[str, Any]:
+    """A graded foam region's summary: its fit, the type of its material, the range of its per-cell density and γ."""
+    from mpi4py import MPI
+
+    foam = cells.foams[region.name]
+    ranges = {}
+    for key in ("density", "gamma"):
+        values = getattr(foam, key)
+        ranges[f"{key}_range"] = [comm.allreduce(float(values.min(initial=np.inf)), op=MPI.MIN),
+                                  comm.allreduce(float(values.max(initial=-np.inf)), op=MPI.MAX)]
+    return {"type": "graded " + type(material).__name__, "fit": region.parameters["fit"], **ranges}
 
 
 def _import_callable(spec: str) -> Callable[[np.ndarray], np.ndarray]:
@@ -229,7 +262,19 @@ def build_model(scene: Scene, comm) -> Model:
     check_units(mesh, extent)
     check_degree(mesh, scene.degree, extent)
     materials = {tag: resolved[region.name] for region in scene.regions for tag in region.tags}
-    field = MaterialField.from_regions(mesh, cell_tags, materials)
+    records = {region.name: _material_record(resolved[region.name]) for region in scene.regions}
+    if scene.graded:  # per-cell density and γ through the table (fenicsfoam.grading)
+        from fenicsfoam.grading import CellMaterials
+        try:
+            cells = CellMaterials.from_regions(mesh, cell_tags, scene.regions, materials=resolved, blends=scene.blends)
+            field = cells.material_field(mesh, materials)
+        except InputError as exc:
+            raise SceneError(f"regions: {exc}") from exc
+        for region in scene.regions:
+            if region.material == "foam":
+                records[region.name] = _graded_record(region, resolved[region.name], cells, comm)
+    else:
+        field = MaterialField.from_regions(mesh, cell_tags, materials)
     a = _build_orientation(scene, mesh, cell_tags)
     context = BuildContext(scene, tagged)
     motions = [m for key, kind in LOAD_KINDS.items() for m in kind.motions(scene.loads[key], context)]
@@ -254,5 +299,4 @@ def build_model(scene: Scene, comm) -> Model:
             if isinstance(exc, SceneError):
                 raise
             raise SceneError(f"probes: {name!r}: {exc}") from exc
-    return Model(tagged, problem, a, probes, load_steps(scene),
-                 {region.name: _material_record(resolved[region.name]) for region in scene.regions})
+    return Model(tagged, problem, a, probes, load_steps(scene), records)

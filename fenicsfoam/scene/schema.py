@@ -1,7 +1,8 @@
 """A scene's schema: the TOML read section by section and validated into a :class:`Scene` before anything is built.
 
 :func:`parse_scene` reads the sections in the order of the file's layout (``[geometry]``, ``[fem]``,
-``[regions.*]``, ``[orientation]``, ``[loads]``, ``[[steps]]``, ``probes``, ``[outputs]``), one reader each; the
+``[regions.*]``, ``[[blends]]``, ``[orientation]``, ``[loads]``, ``[[steps]]``, ``probes``, ``[outputs]``), one reader
+each; the
 first problem raises :class:`~fenicsfoam.scene.table.SceneError` naming its key path. Probes and load keys are
 validated by their entries in :mod:`fenicsfoam.scene.kinds`.
 """
@@ -103,6 +104,13 @@ class Scene:
     png: tuple[str, ...]              #: labels of the steps pictured (the orientation is pictured with any)
     #: the group (:class:`fenicsfoam.scene.kinds.Group`) of each ``"KIND:GROUP"`` probe
     probe_groups: Mapping[str, Any] = field(default_factory=dict)
+    blends: tuple[Mapping[str, Any], ...] = ()  #: ``{"regions": (A, B), "width": w}`` between foam regions
+
+    @property
+    def graded(self) -> bool:
+        """Whether some foam region's density or γ is a field (per tag, a function, or blended)."""
+        return bool(self.blends) or any(isinstance(r.parameters.get(k), dict) for r in self.regions
+                                        for k in GRADED_KEYS)
 
     @property
     def gravity(self) -> tuple[float, float, float] | None:
@@ -237,13 +245,53 @@ def _foam_table_name(region: _Table, base: Path | None) -> str:
     return value
 
 
+#: Keys of a foam region that may be fields (a per-tag table or a function of the cell midpoints).
+GRADED_KEYS = ("density", "gamma")
+
+
+def _read_field(table: _Table, key: str, tags: tuple[int, ...], named: Mapping[str, tuple[int, ...]]):
+    """A foam's ``density`` or ``gamma``: a number, a per-tag table or a function (:mod:`fenicsfoam.grading`).
+
+    TOML: ``density = 0.3``, ``density = {per_tag = {arm0 = 0.3, arm1 = 0.25}}`` or
+    ``density = {function = "module:name"}``.
+    """
+    checks = MATERIAL_CHECKS[key]
+    if not isinstance(table.raw(key, required=True), dict):
+        return table.number(key, required=True, **checks)
+    spec = table.table(key)
+    if spec.has("function"):
+        function = spec.string("function", required=True)
+        if function.count(":") != 1:
+            raise SceneError(f"{spec.key('function')}: expected 'module:function', got {function!r}")
+        spec.done()
+        return {"function": function}
+    per_tag = spec.table("per_tag")
+    if per_tag is None:
+        raise SceneError(f"{spec.path}: expected a number, {{per_tag = {{...}}}} or {{function = \"module:name\"}}")
+    spec.done()
+    values: dict[int, float] = {}
+    for name in per_tag.data:
+        keys = _tags(int(name) if name.lstrip("-").isdigit() else name, per_tag.key(name), named, "region")
+        value = per_tag.number(name, required=True, **checks)
+        for tag in keys:
+            if tag not in tags:
+                raise SceneError(f"{per_tag.key(name)}: cell tag {tag} is not a tag of this region (tags {list(tags)})")
+            values[tag] = value
+    per_tag.done()
+    missing = sorted(set(tags) - set(values))
+    if missing:
+        raise SceneError(f"{per_tag.path}: cell tags {missing} of the region have no value")
+    return {"per_tag": values}
+
+
 def _read_region(name: str, table: _Table, named: Mapping[str, tuple[int, ...]], base: Path | None = None
                  ) -> Region:
     tags = _tags(table.raw("tags", required=True), table.key("tags"), named, "region")
     material = table.string("material", required=True, choices=tuple(MATERIAL_KEYS))
     calibrated = material == "foam" and isinstance(table.data.get("E_solid"), dict)
-    parameters = {key: _calibrated_E_solid(table, base) if calibrated and key == "E_solid" else
-                  table.number(key, required=required, default=default, **MATERIAL_CHECKS.get(key, {}))
+    parameters = {key: (_calibrated_E_solid(table, base) if calibrated and key == "E_solid" else
+                        _read_field(table, key, tags, named) if material == "foam" and key in GRADED_KEYS else
+                        table.number(key, required=required, default=default, **MATERIAL_CHECKS.get(key, {})))
                   for key, (required, default) in MATERIAL_KEYS[material].items()}
     if material == "foam":
         parameters["fit"] = table.string("fit", default="transverse", choices=FOAM_FITS)
@@ -309,6 +357,37 @@ def _read_orientation(scene: _Table, mesh: MeshInfo) -> dict[str, Any] | None:
     spec["offset_deg"] = table.number("offset_deg", default=0.0)
     table.done()
     return spec
+
+
+def _read_blends(scene: _Table, regions: tuple[Region, ...]) -> tuple[dict[str, Any], ...]:
+    """``[[blends]]`` (optional): ``regions = [A, B]`` (two foam regions, density and γ numbers), ``width`` (m)."""
+    value = scene.raw("blends", default=[])
+    if not isinstance(value, list):
+        raise SceneError(f"blends: expected an array of tables ([[blends]]), got {_type_name(value)}")
+    by_name = {r.name: r for r in regions}
+    blends, used = [], set()
+    for i, item in enumerate(value):
+        table = _Table(item, f"blends[{i}]")
+        pair = table.raw("regions", required=True)
+        if not (isinstance(pair, list) and len(pair) == 2 and all(isinstance(n, str) for n in pair)
+                and pair[0] != pair[1]):
+            raise SceneError(f"{table.key('regions')}: expected two distinct region names, got {pair!r}")
+        for name in pair:
+            region = by_name.get(name)
+            if region is None or region.material != "foam":
+                raise SceneError(f"{table.key('regions')}: {name!r} is not a foam region "
+                                 f"(foam regions: {sorted(n for n, r in by_name.items() if r.material == 'foam')})")
+            for key in GRADED_KEYS:
+                if isinstance(region.parameters[key], dict):
+                    raise SceneError(f"{table.key('regions')}: region {name!r} gives {key} as a field; a blend "
+                                     "mixes two regions whose density and gamma are numbers")
+            if name in used:
+                raise SceneError(f"{table.key('regions')}: region {name!r} is already in a blend")
+            used.add(name)
+        width = table.number("width", required=True, check=lambda v: v >= 0, valid="a length >= 0 (m)")
+        table.done()
+        blends.append({"regions": tuple(pair), "width": width})
+    return tuple(blends)
 
 
 def _read_loads(scene: _Table, mesh: MeshInfo) -> dict[str, Any]:
@@ -485,6 +564,7 @@ def parse_scene(data: Mapping[str, Any], base: str | os.PathLike | None = None) 
     mesh = _read_geometry(scene, base)
     model, degree, petsc = _read_fem(scene)
     regions = _read_regions(scene, mesh, base)
+    blends = _read_blends(scene, regions)
     orientation = _read_orientation(scene, mesh)
     loads = _read_loads(scene, mesh)
     steps = _read_steps(scene, loads)
@@ -494,7 +574,7 @@ def parse_scene(data: Mapping[str, Any], base: str | os.PathLike | None = None) 
     return Scene(raw=copy.deepcopy(dict(data)), name=name, builder=mesh.builder, geometry=mesh.params,
                  facets=mesh.facets, model=model, degree=degree, petsc=petsc, regions=regions,
                  orientation=orientation, loads=loads, steps=steps, probes=probes, xdmf=xdmf, png=png,
-                 probe_groups=probe_groups)
+                 probe_groups=probe_groups, blends=blends)
 
 
 def load_scene(source: str | os.PathLike | Mapping[str, Any]) -> Scene:
