@@ -2,7 +2,8 @@
 
 Commands: ``info`` (versions of the numerical stack), ``run`` (a TOML scene; ``--uncertainty``: every probe ± its
 standard deviation over the foam table's seeds), ``calibrate`` (the foams' ``E_solid`` from one measurement,
-:mod:`fenicsfoam.calibrate`), ``homogenize`` (FFT homogenization
+:mod:`fenicsfoam.calibrate`), ``control`` (inverse servo control of the Tripod, :mod:`fenicsfoam.control`),
+``homogenize`` (FFT homogenization
 of a foam or a phase image; the ``homogenize`` program is the same command), ``table`` (the foam-table sweep).
 Exit status: 0 ok, 1 other failure, 2 bad input (detected before any work), 3 a solver did not converge.
 ``-v`` logs INFO (and FFCx's compiler lines), ``-vv`` DEBUG, on rank 0.
@@ -29,6 +30,7 @@ COMMANDS: tuple[str, ...] = (
     "fenicsfoam.cli:INFO",
     "fenicsfoam.cli:RUN",
     "fenicsfoam.calibrate:CALIBRATE",
+    "fenicsfoam.control:CONTROL",
     "homogenization.cli:HOMOGENIZE",
     "homogenization.cli:TABLE",
 )

@@ -1,0 +1,649 @@
+"""Inverse servo control of the Tripod: the three horn angles of the last step that put the centre at a target pose.
+
+Given targets for up to three of the centre's probes (``center_height`` in m, ``center_rotation``,
+``center_tilt_x``, ``center_tilt_y`` in degrees), :func:`control_servos` finds the servo angles θ of the scene's
+last step (earlier steps applied as written; the last step's angles are the initial guess θ⁰) within the servos'
+range ``[lo, hi]``:
+
+* with as many targets as servos, the solution of ``f(θ) = t``;
+* with fewer, the solution of least servo motion, ``min |θ − θ⁰|² subject to f(θ) = t``;
+* if no angle in the range reaches the target, :class:`UnreachableTargetError` (exit status 3) carrying the
+  closest reachable pose, the minimiser of ``|W (f(θ) − t)|²`` over the range (``W`` = 1/mm for heights, 1/deg for
+  angles).
+
+Method, with exact derivatives ``G = ∂f/∂θ`` of the targets (one adjoint solve per target,
+:mod:`fenicsfoam.sensitivity`) and ``W`` the weights above:
+
+1. *Restoration* (Newton onto the targets): from θ the least-norm step ``min |δ|² subject to
+   f + G δ = t, lo ≤ θ + δ ≤ hi`` (an exact small QP: every face of the box is solved as an equality-constrained
+   problem, :func:`qp_step`), backtracked (halved) until ``½ |W (f − t)|²`` decreases and the forward solve
+   converges. Quadratic convergence near a solution; with three targets this is the whole method. If the
+   linearised targets are out of the box, the step goes to the bounded least-squares point
+   (``scipy.optimize.lsq_linear``) instead (Gauss–Newton towards the closest pose); where that is stationary
+   (projected gradient zero) or no step decreases the misfit, the targets are out of reach:
+   :class:`UnreachableTargetError`.
+2. *Least motion* (fewer targets than servos): at a point that meets the targets, the reduced gradient
+   ``Zᵀ(θ − θ⁰)`` (``Z`` an orthonormal basis of the null space of ``G``, the level set's tangent) vanishes at the
+   least-motion solution (its KKT condition). Otherwise a quasi-Newton step ``−Z H⁻¹ Zᵀ(θ − θ⁰)`` along the
+   tangent (``H`` by damped BFGS from successive reduced gradients; lengthened while the level set shows no
+   positive curvature, at most 10°), then restoration; accepted if the motion ``|θ − θ⁰|`` decreased, else halved.
+   Converged when the reduced gradient is below 1e-5 deg.
+3. *Symmetric poses*: at equal angles of a D3-symmetric plate the targets' gradients can be parallel (height and
+   twist of case B), so no first-order step meets both; the iteration then steps 1° along a fixed direction
+   (``(1, 0, −1)`` made orthogonal to the gradients; fixed, so that serial and MPI runs take the same path) and
+   goes on (at most three times).
+
+Targets are met within their tolerance (default 1e-9 m, 1e-7 deg). ``iterations`` counts the steps taken (each a
+forward solve), ``scene_solves`` every forward solve, backtracked ones included.
+
+Each forward solve moves the last step's angles from the previous equilibrium (:meth:`SceneDesign.solve_last`);
+``scene_solves`` counts them, the first being the whole schedule.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import logging
+import math
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from foambase import cli
+from foambase.errors import InputError, NotConvergedError
+
+__all__ = ["CONTROL", "TARGET_PROBES", "ControlResult", "InverseController", "UnreachableTargetError",
+           "control_servos", "parse_targets"]
+
+logger = logging.getLogger(__name__)
+
+#: The probes a target may name, with their units (and the scale of the misfit weight W, in those units).
+TARGET_PROBES: dict[str, tuple[str, float]] = {
+    "center_height": ("m", 1e-3),
+    "center_rotation": ("deg", 1.0),
+    "center_tilt_x": ("deg", 1.0),
+    "center_tilt_y": ("deg", 1.0),
+}
+#: Default tolerance of a target, by unit.
+TOLERANCES: dict[str, float] = {"m": 1e-9, "deg": 1e-7}
+#: Default servo range (deg): the paper's poses are 0° (rest), 19° (middle), 38° (top); a modelling choice with margin.
+SERVO_RANGE: tuple[float, float] = (-20.0, 60.0)
+_MOTION_TOL = 1e-5   # deg: the least-motion iteration is converged when a step moves less
+_STALL_TOL = 1e-9    # deg: a step this small with the targets unmet means the iteration is stationary
+_RANK_TOL = 1e-7     # the targets' gradients are rank deficient when σ_min <= _RANK_TOL σ_max
+_ESCAPE_DEG = 1.0    # deg: the step that leaves a rank-deficient (symmetric) pose
+_MAX_ESCAPES = 3
+_MAX_TANGENT_DEG = 10.0  # deg: the longest least-motion step
+#: Fixed directions that leave a symmetric pose (the first not parallel to the gradients' row space is used).
+_ESCAPE_DIRECTIONS = (np.array([1.0, 0.0, -1.0]), np.array([0.0, 1.0, -1.0]), np.array([1.0, -1.0, 0.0]))
+
+
+@dataclass
+class ControlResult:
+    """What :func:`control_servos` found (``control.json``)."""
+
+    servo_deg: list[float]
+    target: dict[str, float]
+    achieved: dict[str, float]
+    iterations: int
+    scene_solves: int
+    reached: bool = True
+    servo_range: tuple[float, float] = SERVO_RANGE
+    initial_deg: list[float] = field(default_factory=list)
+    history: list[dict[str, Any]] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict: ``servo_deg, target, achieved, iterations, scene_solves`` first."""
+        return asdict(self)
+
+    def write(self, out_dir: str | os.PathLike, comm=None) -> Path:
+        """``out_dir/control.json``, written atomically on rank 0; returns its path."""
+        from mpi4py import MPI
+
+        from foambase.files import write_json_atomic
+        comm = MPI.COMM_WORLD if comm is None else comm
+        path = Path(out_dir) / "control.json"
+        if comm.rank == 0:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            write_json_atomic(path, self.to_dict())
+        comm.Barrier()
+        return path
+
+
+class UnreachableTargetError(NotConvergedError):
+    """No servo angles within the range reach the target; ``closest`` is the closest reachable pose.
+
+    Attributes
+    ----------
+    closest
+        A :class:`ControlResult` with ``reached = False``: the angles and probes of the closest pose found.
+
+    """
+
+    def __init__(self, message: str, closest: ControlResult):
+        self.closest = closest
+        super().__init__(message)
+
+
+def parse_targets(items: Sequence[str]) -> dict[str, float]:
+    """``["center_height=0.02", ...]`` → ``{"center_height": 0.02}``; :class:`InputError` naming a bad item."""
+    targets: dict[str, float] = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        name = name.strip()
+        if not sep:
+            raise InputError(f"target {item!r}: expected NAME=VALUE, e.g. center_height=0.02")
+        try:
+            number = float(value)
+        except ValueError:
+            raise InputError(f"target {item!r}: {value!r} is not a number") from None
+        if name in targets:
+            raise InputError(f"target {name!r} is given twice")
+        targets[name] = number
+    return targets
+
+
+def _check_targets(targets: Mapping[str, float], n_servos: int) -> dict[str, float]:
+    if not targets:
+        raise InputError(f"give at least one target ({', '.join(TARGET_PROBES)})")
+    for name, value in targets.items():
+        if name not in TARGET_PROBES:
+            raise InputError(f"unknown target {name!r}; valid: {', '.join(TARGET_PROBES)} "
+                             "(center_height in m, the angles in degrees)")
+        if not math.isfinite(value):
+            raise InputError(f"target {name} = {value!r}: expected a finite number")
+    if len(targets) > n_servos:
+        raise InputError(f"{len(targets)} targets for {n_servos} servos: give at most {n_servos}")
+    return {k: float(v) for k, v in targets.items()}
+
+
+def _check_range(servo_range: Sequence[float]) -> tuple[float, float]:
+    lo, hi = (float(v) for v in servo_range)
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi and -180.0 < lo and hi < 180.0):
+        raise InputError(f"servo range [{lo!r}, {hi!r}] deg: expected -180 < lo < hi < 180")
+    return lo, hi
+
+
+# --------------------------------------------------------------------------------------------------
+# The QP of a step
+# --------------------------------------------------------------------------------------------------
+def qp_step(B: np.ndarray, g: np.ndarray, A: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+            rtol: float = 1e-10) -> tuple[np.ndarray, np.ndarray] | None:
+    """``argmin ½ δᵀBδ + gᵀδ`` subject to ``A δ = b`` and ``lo ≤ δ ≤ hi`` (B positive definite), with multipliers.
+
+    Returns ``(δ, λ)``, ``λ`` the multipliers of the equalities (``Bδ + g + Aᵀλ = 0`` on the free unknowns), or
+    ``None`` if the constraints are infeasible.
+
+    Exact for a few unknowns: every face of the box (each unknown free, at ``lo`` or at ``hi``) is solved as an
+    equality-constrained QP (its KKT system, by least squares); the best feasible candidate is the minimiser
+    (a convex QP's minimiser is the KKT point of the face whose relative interior holds it).
+    """
+    n, m = B.shape[0], A.shape[0]
+    scale = np.abs(A) @ np.maximum(np.abs(lo), np.abs(hi)) + np.abs(b) + 1e-300
+    best, best_value = None, np.inf
+    for status in itertools.product((0, 1, 2), repeat=n):
+        d = np.zeros(n)
+        fixed = [i for i in range(n) if status[i]]
+        free = [i for i in range(n) if not status[i]]
+        for i in fixed:
+            d[i] = lo[i] if status[i] == 1 else hi[i]
+        lam = np.zeros(m)
+        if free:
+            k = len(free)
+            K = np.zeros((k + m, k + m))
+            K[:k, :k] = B[np.ix_(free, free)]
+            K[:k, k:] = A[:, free].T
+            K[k:, :k] = A[:, free]
+            rhs = np.concatenate([-g[free] - B[np.ix_(free, fixed)] @ d[fixed], b - A[:, fixed] @ d[fixed]])
+            solution = np.linalg.lstsq(K, rhs, rcond=None)[0]
+            d[free], lam = solution[:k], solution[k:]
+        if np.any(np.abs(A @ d - b) > rtol * scale):
+            continue
+        if np.any(d < lo - 1e-12) or np.any(d > hi + 1e-12):
+            continue
+        value = float(0.5 * d @ B @ d + g @ d)
+        if value < best_value:
+            best, best_value = (np.clip(d, lo, hi), lam), value
+    return best
+
+
+def least_motion(G: np.ndarray, c: np.ndarray, theta0: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                 rtol: float = 1e-10) -> np.ndarray | None:
+    """``argmin |x − θ⁰|²`` subject to ``G x = c`` and ``lo ≤ x ≤ hi``; ``None`` if infeasible (:func:`qp_step`)."""
+    theta0 = np.asarray(theta0, dtype=float)
+    step = qp_step(np.eye(theta0.size), np.zeros(theta0.size), G, c - G @ theta0, lo - theta0, hi - theta0, rtol)
+    return None if step is None else theta0 + step[0]
+
+
+def _closest_step(G, c, theta0, lo, hi):
+    """The bounded least-squares point of ``|G x − c|`` (rows already weighted), then its least-motion point."""
+    from scipy.optimize import lsq_linear
+    x = lsq_linear(G, c, bounds=(lo, hi), method="bvls", tol=1e-14).x
+    closest = least_motion(G, G @ x, theta0, lo, hi, rtol=1e-8)
+    return x if closest is None else closest
+
+
+def _projected_gradient(gradient: np.ndarray, x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """The gradient with the components that push ``x`` out of the box (at a bound) removed."""
+    p = gradient.copy()
+    p[(x <= lo + 1e-12) & (p > 0)] = 0.0
+    p[(x >= hi - 1e-12) & (p < 0)] = 0.0
+    return p
+
+
+def _escape_direction(G: np.ndarray) -> np.ndarray:
+    """A unit step off a rank-deficient pose: a fixed direction projected off the row space of ``G``.
+
+    Fixed (not a singular vector, which round-off would pick differently on different partitions), so the
+    iteration is the same serially and under MPI.
+    """
+    _, sv, Vt = np.linalg.svd(G)
+    basis = Vt[: int(np.sum(sv > _RANK_TOL * sv[0]))]
+    for d in _ESCAPE_DIRECTIONS:
+        d = d - basis.T @ (basis @ d)
+        if np.linalg.norm(d) > 0.1:
+            return d / np.linalg.norm(d)
+    return _ESCAPE_DIRECTIONS[0] / np.linalg.norm(_ESCAPE_DIRECTIONS[0])
+
+
+def _damped_bfgs(B: np.ndarray, s: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Powell's damped BFGS update of a positive definite ``B`` with the step ``s`` and gradient change ``y``."""
+    Bs = B @ s
+    sBs = float(s @ Bs)
+    if sBs <= 1e-300:
+        return B
+    sy = float(s @ y)
+    if sy < 0.2 * sBs:
+        t = 0.8 * sBs / (sBs - sy)
+        y = t * y + (1.0 - t) * Bs
+        sy = float(s @ y)
+    return B - np.outer(Bs, Bs) / sBs + np.outer(y, y) / sy
+
+
+# --------------------------------------------------------------------------------------------------
+# The controller
+# --------------------------------------------------------------------------------------------------
+class InverseController:
+    """Inverse control of a scene's servos, keeping its :class:`~fenicsfoam.design.SceneDesign` between calls.
+
+    Successive :meth:`solve` calls start from the previous solution's equilibrium (warm start), e.g. along a
+    trajectory of poses.
+    """
+
+    def __init__(self, source, comm=None, servo_range: Sequence[float] = SERVO_RANGE,
+                 tolerances: Mapping[str, float] | None = None, max_iterations: int = 60):
+        from fenicsfoam.design import SceneDesign
+        from fenicsfoam.scene import Scene, load_scene
+
+        scene = source if isinstance(source, Scene) else load_scene(source)
+        if scene.builder != "tripod" or not scene.servos:
+            raise InputError(f"scene {scene.name!r}: inverse control needs the tripod builder with "
+                             "loads.servos = true")
+        self.servo_range = _check_range(servo_range)
+        self.tolerances = {**TOLERANCES, **(tolerances or {})}
+        if not (isinstance(max_iterations, int) and max_iterations >= 1):
+            raise InputError(f"max_iterations must be an integer >= 1, got {max_iterations!r}")
+        self.max_iterations = max_iterations
+        initial = [0.0, 0.0, 0.0]
+        for step in scene.steps:
+            if step.servo_deg is not None:
+                initial = list(step.servo_deg)
+        self.initial_deg = np.array(initial, dtype=float)
+        self._check_initial(self.initial_deg)  # before anything is built
+        self.design = SceneDesign(scene, comm, probes=tuple(TARGET_PROBES))
+        self._solved = False
+
+    def _check_initial(self, initial: np.ndarray) -> None:
+        lo, hi = self.servo_range
+        if np.any(initial < lo) or np.any(initial > hi):
+            raise InputError(f"initial servo angles {initial.tolist()} deg (the last step's servo_deg) lie outside "
+                             f"the servo range [{lo:g}, {hi:g}] deg")
+
+    def solve(self, targets: Mapping[str, float], initial_deg: Sequence[float] | None = None) -> ControlResult:
+        """Servo angles that meet ``targets`` (module docstring); the first call runs the whole schedule.
+
+        ``initial_deg`` (default: the last step's angles at the first call, then the previous solution) is the
+        initial guess and the origin of the least motion.
+
+        Raises
+        ------
+        InputError
+            Bad targets or initial angles (before any solve).
+        UnreachableTargetError
+            The targets are out of reach within the servo range; ``closest`` holds the closest pose.
+        foambase.errors.NotConvergedError
+            The iteration did not converge in ``max_iterations`` (or a forward solve kept failing).
+
+        """
+        design = self.design
+        targets = _check_targets(targets, len(design.servos))
+        theta0 = np.array(self.initial_deg if initial_deg is None else initial_deg, dtype=float)
+        if theta0.shape != (3,) or not np.all(np.isfinite(theta0)):
+            raise InputError(f"initial servo angles must be 3 finite numbers (deg), got {theta0.tolist()}")
+        self._check_initial(theta0)
+        run = _Run(self, targets, theta0)
+        if not self._solved:
+            design.set_servo_deg(theta0)
+            run.values = design.solve()
+            self._solved = True
+        else:
+            run.values = design.solve_last(theta0)
+        run.record(np.inf)
+        result = run.iterate()
+        self.initial_deg = np.array(result.servo_deg)
+        return result
+
+    def _unreachable(self, closest: ControlResult) -> None:
+        lo, hi = self.servo_range
+        raise UnreachableTargetError(
+            f"the target {closest.target} is outside the reachable set for servo angles in [{lo:g}, {hi:g}] deg; "
+            f"closest reachable pose: {closest.achieved} at servo {np.round(closest.servo_deg, 6).tolist()} deg",
+            closest)
+
+
+class _Run:
+    """One inverse-control solve: restoration (Newton onto the targets) and least-motion tangent steps."""
+
+    def __init__(self, controller: InverseController, targets: dict[str, float], theta0: np.ndarray):
+        self.controller, self.design = controller, controller.design
+        self.targets, self.theta0 = targets, theta0
+        self.names = list(targets)
+        self.t = np.array([targets[n] for n in self.names])
+        self.w = np.array([1.0 / TARGET_PROBES[n][1] for n in self.names])
+        self.tol = np.array([controller.tolerances[TARGET_PROBES[n][0]] for n in self.names])
+        self.lo, self.hi = (np.full(3, v) for v in controller.servo_range)
+        self.theta = theta0.copy()
+        self.values: dict[str, float] = {}
+        self.solves0 = self.design.solves
+        self.history: list[dict[str, Any]] = []
+        self.iterations = 0
+        self.escapes = 0
+
+    # -- bookkeeping ------------------------------------------------------------------------------
+    @property
+    def misfit(self) -> np.ndarray:
+        return np.array([self.values[n] for n in self.names]) - self.t
+
+    @property
+    def met(self) -> bool:
+        return bool(np.all(np.abs(self.misfit) <= self.tol))
+
+    def record(self, step: float) -> None:
+        self.history.append({"iteration": self.iterations, "servo_deg": self.theta.tolist(),
+                             "achieved": {n: self.values[n] for n in self.names}, "step_deg": float(step)})
+        logger.info("control iteration %d: servo %s deg, misfit %s", self.iterations,
+                    np.round(self.theta, 6).tolist(), self.misfit.tolist())
+
+    def result(self, reached: bool) -> ControlResult:
+        return ControlResult(servo_deg=self.theta.tolist(), target=dict(self.targets),
+                             achieved={n: self.values[n] for n in self.names}, iterations=self.iterations,
+                             scene_solves=self.design.solves - self.solves0, reached=reached,
+                             servo_range=self.controller.servo_range, initial_deg=self.theta0.tolist(),
+                             history=self.history)
+
+    def _count(self) -> None:
+        self.iterations += 1
+        if self.iterations > self.controller.max_iterations:
+            closest = self.result(False)
+            misfit = dict(zip(self.names, self.misfit.tolist()))
+            raise _NotConverged(f"inverse control did not converge in {self.controller.max_iterations} iterations: "
+                                f"misfit {misfit} at servo {np.round(self.theta, 6).tolist()} deg", closest)
+
+    def _gradients(self) -> np.ndarray:
+        """``W ∂f/∂θ`` (targets × servos) at the current equilibrium."""
+        g = self.design.gradient(self.names, list(self.design.servos))
+        return self.w[:, None] * np.array([[g[n][s] for s in self.design.servos] for n in self.names])
+
+    def _move(self, trial: np.ndarray) -> bool:
+        """Solve at ``trial``; on a failed forward solve go back to the current state and return False."""
+        from fenicsfoam.solver import ConvergenceError
+
+        state = self.design.problem.snapshot()
+        try:
+            self.values_trial = self.design.solve_last(trial)
+        except ConvergenceError as exc:
+            logger.info("control: forward solve at %s failed (%s)", trial.tolist(), exc)
+            self.design.problem.restore(state)
+            self.design.set_servo_deg(self.theta)
+            return False
+        self._state = state
+        return True
+
+    def _undo(self) -> None:
+        self.design.problem.restore(self._state)
+        self.design.set_servo_deg(self.theta)
+
+    # -- restoration: Newton (least-norm steps) onto f(θ) = t, Gauss-Newton to the closest pose if out of reach --
+    def restore(self) -> np.ndarray:
+        """Meet the targets from the current θ; returns ``W ∂f/∂θ`` at the result."""
+        lo, hi, w = self.lo, self.hi, self.w
+        while True:
+            Gw = self._gradients()
+            if self.met:
+                return Gw
+            rw = w * self.misfit
+            singular = np.linalg.svd(Gw, compute_uv=False)
+            if singular[-1] <= _RANK_TOL * singular[0] and self.escapes < _MAX_ESCAPES:
+                # A symmetric pose: the targets' gradients are parallel (e.g. height and twist of case B at equal
+                # angles), so no first-order step meets them; leave the symmetry along a fixed direction.
+                self.escapes += 1
+                direction = _escape_direction(Gw)
+                logger.info("control: rank-deficient target gradients at %s; a %g deg step along %s",
+                            self.theta.tolist(), _ESCAPE_DEG, np.round(direction, 6).tolist())
+                self._count()
+                if self._move(np.clip(self.theta + _ESCAPE_DEG * direction, lo, hi)):
+                    self.theta, self.values = np.clip(self.theta + _ESCAPE_DEG * direction, lo, hi), self.values_trial
+                self.record(_ESCAPE_DEG)
+                continue
+            qp = qp_step(np.eye(3), np.zeros(3), Gw, -rw, lo - self.theta, hi - self.theta)
+            if qp is not None:
+                step = qp[0]
+            else:  # the linearised target is out of the box: towards the closest pose
+                gradient = Gw.T @ rw
+                stationary = np.max(np.abs(_projected_gradient(gradient, self.theta, lo, hi))) * (hi[0] - lo[0]) \
+                    <= 1e-10 * float(rw @ rw)
+                if stationary:
+                    self.controller._unreachable(self.result(False))
+                step = _closest_step(Gw, Gw @ self.theta - rw, self.theta, lo, hi) - self.theta
+            merit = 0.5 * float(rw @ rw)
+            alpha, accepted = 1.0, False
+            for _ in range(10):
+                trial = np.clip(self.theta + alpha * step, lo, hi)
+                if self._move(trial):
+                    trial_rw = w * (np.array([self.values_trial[n] for n in self.names]) - self.t)
+                    if 0.5 * float(trial_rw @ trial_rw) <= merit * (1.0 - 1e-4 * alpha):
+                        accepted = True
+                        break
+                    self._undo()
+                alpha *= 0.5
+            self._count()
+            if not accepted:
+                if qp is None:
+                    self.controller._unreachable(self.result(False))
+                raise _NotConverged(f"inverse control: no step from servo {np.round(self.theta, 6).tolist()} deg "
+                                    f"reduces the misfit {self.misfit.tolist()} (a forward solve failing?)",
+                                    self.result(False))
+            self.theta, self.values = trial, self.values_trial
+            self.record(float(np.max(np.abs(alpha * step))))
+
+    # -- the least-motion iteration ---------------------------------------------------------------
+    def iterate(self) -> ControlResult:
+        """Restoration, then (fewer targets than servos) quasi-Newton steps along the targets' level set."""
+        Gw = self.restore()
+        if len(self.names) == 3:
+            return self.result(True)
+        previous = None          # (reduced gradient, tangent basis, θ) of the last feasible point
+        H = None                 # reduced Hessian of ½|θ − θ⁰|² on the level set (secant updates)
+        stretch = 1.0            # step length factor while no positive curvature is known
+        while True:
+            Z = _tangent_basis(Gw)
+            g = Z.T @ (self.theta - self.theta0)
+            if np.max(np.abs(g)) <= _MOTION_TOL:
+                return self.result(True)
+            if previous is not None:
+                g_prev, Z_prev, theta_prev = previous
+                s_z = Z.T @ (self.theta - theta_prev)
+                y_z = g - Z.T @ Z_prev @ g_prev
+                if float(s_z @ y_z) > 1e-12 * float(s_z @ s_z):
+                    H = _damped_bfgs(np.eye(len(g)) if H is None else H, s_z, y_z)
+                else:  # no positive curvature along the level set (yet): lengthen the steps
+                    H, stretch = None, min(2.0 * stretch, 1e3)
+            step = -Z @ np.linalg.solve(np.eye(len(g)) if H is None else H, g)
+            if H is None:
+                step *= stretch
+            step *= min(1.0, _MAX_TANGENT_DEG / max(float(np.max(np.abs(step))), 1e-300))
+            distance = float(np.sum((self.theta - self.theta0) ** 2))
+            state = self.design.problem.snapshot()
+            saved = (self.theta.copy(), dict(self.values))
+            accepted = False
+            for _ in range(6):
+                trial = np.clip(self.theta + step, self.lo, self.hi)
+                self._count()
+                if self._move(trial):
+                    self.theta, self.values = trial, self.values_trial
+                    self.record(float(np.max(np.abs(step))))
+                    try:
+                        Gw_new = self.restore()
+                    except UnreachableTargetError:
+                        Gw_new = None
+                    if Gw_new is not None and float(np.sum((self.theta - self.theta0) ** 2)) < distance:
+                        accepted = True
+                        break
+                # back to the last feasible point, half the step
+                self.design.problem.restore(state)
+                self.theta, self.values = saved[0].copy(), dict(saved[1])
+                self.design.set_servo_deg(self.theta)
+                step *= 0.5
+                H, stretch = None, max(0.5 * stretch, 1.0)
+            if not accepted:
+                logger.info("control: no shorter motion found near servo %s deg (reduced gradient %s deg); "
+                            "stopping there", np.round(self.theta, 6).tolist(), g.tolist())
+                return self.result(True)
+            previous = (g, Z, saved[0])
+            Gw = Gw_new
+
+
+def _tangent_basis(G: np.ndarray) -> np.ndarray:
+    """An orthonormal basis (3, k) of the null space of ``G``, each column's sign fixed (largest entry positive)."""
+    _, _, Vt = np.linalg.svd(G)
+    Z = Vt[G.shape[0]:].T
+    for j in range(Z.shape[1]):
+        i = int(np.argmax(np.abs(Z[:, j])))
+        if Z[i, j] < 0:
+            Z[:, j] = -Z[:, j]
+    return Z
+
+
+class _NotConverged(NotConvergedError):
+    def __init__(self, message: str, closest: ControlResult):
+        self.closest = closest
+        super().__init__(message)
+
+
+def control_servos(source, targets: Mapping[str, float], *, comm=None, servo_range: Sequence[float] = SERVO_RANGE,
+                   tolerances: Mapping[str, float] | None = None, max_iterations: int = 60,
+                   out_dir: str | os.PathLike | None = None) -> ControlResult:
+    """Servo angles of the scene's last step that meet ``targets`` (module docstring).
+
+    Parameters
+    ----------
+    source
+        A Tripod scene with servos (TOML path, dict or parsed scene).
+    targets
+        ``{probe: value}``: ``center_height`` (m), ``center_rotation``, ``center_tilt_x``, ``center_tilt_y``
+        (deg); one to three of them.
+    comm
+        MPI communicator (default ``MPI.COMM_WORLD``).
+    servo_range
+        ``(lo, hi)`` in degrees, the bounds of every servo.
+    tolerances
+        ``{"m": ..., "deg": ...}``, the tolerance of the targets by unit (default 1e-9 m, 1e-7 deg).
+    max_iterations
+        Steps (each a forward solve) before :class:`~foambase.errors.NotConvergedError`.
+    out_dir
+        Writes ``out_dir/control.json`` (also when unreachable, with ``reached = false`` and the closest pose).
+
+    """
+    targets = dict(targets)
+    _check_targets(targets, 3)
+    controller = InverseController(source, comm, servo_range, tolerances, max_iterations)
+    try:
+        result = controller.solve(targets)
+    except (UnreachableTargetError, _NotConverged) as exc:
+        if out_dir is not None:
+            exc.closest.write(out_dir, controller.design.comm)
+        raise
+    if out_dir is not None:
+        result.write(out_dir, controller.design.comm)
+    return result
+
+
+# --------------------------------------------------------------------------------------------------
+# The command
+# --------------------------------------------------------------------------------------------------
+def _arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("scene", type=Path, help="a Tripod scene file (TOML) with loads.servos = true")
+    parser.add_argument("--target", action="append", default=[], metavar="NAME=VALUE", required=True,
+                        help="a target pose component: center_height (m), center_rotation, center_tilt_x, "
+                             "center_tilt_y (deg); repeat for up to three")
+    parser.add_argument("--out", type=Path, required=True, help="output directory (control.json)")
+    parser.add_argument("--servo-range", type=float, nargs=2, default=list(SERVO_RANGE), metavar=("LO", "HI"),
+                        help="bounds of every servo angle (deg)")
+    parser.add_argument("--tol-m", type=float, default=TOLERANCES["m"], help="tolerance of a height target (m)")
+    parser.add_argument("--tol-deg", type=float, default=TOLERANCES["deg"],
+                        help="tolerance of an angle target (deg)")
+    parser.add_argument("--max-iterations", type=int, default=60, help="steps (each a forward solve) at most")
+
+
+def _check(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    try:
+        _check_targets(parse_targets(args.target), 3)
+        _check_range(args.servo_range)
+    except InputError as exc:
+        parser.error(str(exc))
+    for name in ("tol_m", "tol_deg"):
+        value = getattr(args, name)
+        if not (math.isfinite(value) and value > 0):
+            parser.error(f"--{name.replace('_', '-')} must be > 0, got {value!r}")
+    if args.max_iterations < 1:
+        parser.error(f"--max-iterations must be >= 1, got {args.max_iterations}")
+
+
+def _run(args: argparse.Namespace) -> int:
+    from mpi4py import MPI
+    from petsc4py import PETSc
+
+    comm = MPI.COMM_WORLD
+    if args.passthrough:
+        PETSc.Options().insertString(" ".join(args.passthrough))
+    try:
+        result = control_servos(args.scene, parse_targets(args.target), comm=comm, servo_range=args.servo_range,
+                                tolerances={"m": args.tol_m, "deg": args.tol_deg},
+                                max_iterations=args.max_iterations, out_dir=args.out)
+    except (UnreachableTargetError, _NotConverged) as exc:
+        if comm.rank == 0:
+            print(f"closest pose written to {args.out / 'control.json'} (reached = false)")
+        raise exc
+    if comm.rank == 0:
+        print("servo (deg): " + ", ".join(f"{a:.6f}" for a in result.servo_deg))
+        for name, value in result.target.items():
+            unit = TARGET_PROBES[name][0]
+            print(f"{name}: target {value:.9g} {unit}, achieved {result.achieved[name]:.9g} {unit}")
+        print(f"{result.iterations} iterations, {result.scene_solves} scene solves; {args.out / 'control.json'}")
+    return 0
+
+
+CONTROL = cli.Command(
+    "control", "inverse servo control: the Tripod's horn angles for a target centre pose", _arguments, _run,
+    description="Find the servo angles of the scene's last step (earlier steps as written; its angles are the "
+                "initial guess) that put the Tripod's centre at the target (Gauss-Newton with adjoint "
+                "sensitivities, bounded by --servo-range); fewer targets than servos: the least servo motion. "
+                "Writes OUT/control.json. Exit 3 (with control.json, reached = false, and the closest reachable pose) "
+                "when the target is out of reach or the iteration does not converge. PETSc options after '--' "
+                "apply to the scene's solver (prefix 'scene_'). Works under mpirun.",
+    check=_check, passthrough=True)
