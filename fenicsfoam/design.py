@@ -37,6 +37,7 @@ import logging
 import math
 import os
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -44,7 +45,7 @@ from mpi4py import MPI
 
 from foambase.errors import InputError
 
-__all__ = ["OrientationDesign", "SceneDesign", "SERVOS"]
+__all__ = ["DesignHistory", "DesignResult", "OrientationDesign", "SERVOS", "SceneDesign", "optimize_probe"]
 
 logger = logging.getLogger(__name__)
 
@@ -384,3 +385,204 @@ class SceneDesign:
 
         from fenicsfoam.plotting import plot_orientation
         plot_orientation(self.problem.orientation, Path(path), title=title or f"{self.scene.name}: l axis")
+
+
+# --------------------------------------------------------------------------------------------------
+# Optimisation of a probe under a bound on another
+# --------------------------------------------------------------------------------------------------
+@dataclass
+class DesignHistory:
+    """What an optimisation did: every evaluation (one scene solve each) and every accepted iterate."""
+
+    evaluations: list[dict[str, Any]] = field(default_factory=list)  #: solves, objective, change, feasible (box, bound)
+    iterates: list[dict[str, Any]] = field(default_factory=list)     #: iteration, solves, objective, change
+
+    def solves_to_reach(self, level: float) -> int | None:
+        """Scene solves until a feasible evaluation (in the box, within the bound) first reached ``level``."""
+        for e in self.evaluations:
+            if e["objective"] >= level and e["feasible"]:
+                return e["solves"]
+        return None
+
+
+@dataclass
+class DesignResult:
+    """The outcome of :func:`optimize_probe`."""
+
+    parameters: dict[str, Any]     #: the best feasible design found (scalars; per-cell arrays global, gathered)
+    objective: float               #: its objective (the probe, signed so that larger is better)
+    change: float                  #: its change of the bounded probe from the initial design
+    initial_objective: float
+    solves: int                    #: scene solves used
+    history: DesignHistory
+    message: str
+
+
+def optimize_probe(design: SceneDesign, probe: str, parameters: Sequence[str], bounds: Mapping[str, tuple],
+                   *, maximize: bool = True, bounded: str = "center_height", bound: float = 1e-3,
+                   method: str = "SLSQP", maxiter: int = 20, scales: Mapping[str, float] | None = None,
+                   penalty: float = 10.0) -> DesignResult:
+    """Maximise (or minimise) a probe at the last step, keeping another within a bound of its initial value.
+
+    ``scipy.optimize`` with adjoint gradients, or a gradient-free method for comparison.
+
+    Parameters
+    ----------
+    design
+        The scene (its current parameters are the initial design).
+    probe
+        The probe to maximise (``maximize``) or minimise; the objective is the probe signed so that larger is
+        better.
+    parameters, bounds
+        Parameter names (:meth:`SceneDesign.parameters`; per-cell ones allowed) and ``{name: (lo, hi)}``.
+    maximize
+        Maximise (default) or minimise ``probe``.
+    bounded, bound
+        ``|bounded − bounded₀| <= bound`` (in the probe's units, e.g. m).
+    method
+        ``"SLSQP"`` (the bound as two inequality constraints, adjoint gradients), ``"L-BFGS-B"`` (the bound as
+        a quadratic penalty ``penalty · (excess / bound)²`` in the objective's units, adjoint gradients; for many
+        parameters) or ``"COBYLA"`` (gradient-free, the bound and the box as constraints).
+    maxiter
+        Iterations of the method.
+    scales
+        Typical size of each parameter (the optimiser sees ``value / scale``); default 1.
+    penalty
+        Weight of the L-BFGS-B penalty.
+
+    Every evaluation is one scene solve (:meth:`SceneDesign.solve`) plus, for the gradient methods, one adjoint
+    factorization and two adjoint solves. The result is the best feasible evaluation; the design is left there.
+
+    """
+    from scipy import optimize
+
+    if method not in ("SLSQP", "L-BFGS-B", "COBYLA"):
+        raise InputError(f"method must be SLSQP, L-BFGS-B or COBYLA, got {method!r}")
+    for name in (probe, bounded):
+        if name not in design.probes:
+            raise InputError(f"probe {name!r} is not built (probes: {sorted(design.probes)})")
+    for name in parameters:
+        design._check(name)
+        if name not in bounds:
+            raise InputError(f"parameter {name!r} has no bounds")
+    scales = {n: 1.0 for n in parameters} | dict(scales or {})
+    sign = 1.0 if maximize else -1.0
+    # the vector of unknowns: scalars, then per-cell arrays gathered in the ranks' order
+    layout, start = [], 0
+    x0 = []
+    for name in parameters:
+        value = design.get(name)
+        if isinstance(value, np.ndarray):
+            glob = np.nan_to_num(design.gather(value))
+            layout.append((name, start, glob.size, True))
+            x0.append(glob / scales[name])
+            start += glob.size
+        else:
+            layout.append((name, start, 1, False))
+            x0.append(np.array([value / scales[name]]))
+            start += 1
+    x0 = np.concatenate(x0)
+    lower = np.concatenate([np.full(n, bounds[name][0] / scales[name]) for name, _, n, _ in layout])
+    upper = np.concatenate([np.full(n, bounds[name][1] / scales[name]) for name, _, n, _ in layout])
+    if np.any(x0 < lower - 1e-12) or np.any(x0 > upper + 1e-12):
+        raise InputError("the initial design lies outside the bounds")
+
+    cache: dict[bytes, dict[str, Any]] = {}
+    history = DesignHistory()
+    baseline: dict[str, float] = {}
+
+    def unpack(x):
+        values = {}
+        for name, s0, n, cellwise in layout:
+            part = x[s0:s0 + n] * scales[name]
+            values[name] = design.scatter(part) if cellwise else float(part[0])
+        return values
+
+    def evaluate(x, gradient: bool):
+        key = np.asarray(x, dtype=float).tobytes()
+        entry = cache.get(key)
+        if entry is None:
+            design.set(unpack(x))
+            values = design.solve()
+            if not baseline:
+                baseline.update(values)
+            inside = bool(np.all(x >= lower - 1e-9) and np.all(x <= upper + 1e-9))
+            entry = {"objective": sign * values[probe], "change": values[bounded] - baseline[bounded],
+                     "feasible": inside and abs(values[bounded] - baseline[bounded]) <= bound * (1 + 1e-9)}
+            cache[key] = entry
+            history.evaluations.append({"solves": design.solves - solves0, **entry})
+            entry["state"] = design.problem.snapshot()
+            entry["x"] = np.array(x, dtype=float)
+        if gradient and "gradient" not in entry:
+            if not np.array_equal(design.problem.u.x.array, entry["state"][0]):
+                design.set(unpack(x))
+                design.problem.restore(entry["state"])
+            g = design.gradient([probe, bounded], list(parameters))
+            flat = {}
+            for which in (probe, bounded):
+                parts = []
+                for name, _, _, cellwise in layout:
+                    value = g[which][name]
+                    parts.append((design.gather(value) if cellwise else np.array([value])) * scales[name])
+                flat[which] = np.concatenate(parts)
+            entry["gradient"] = (sign * flat[probe], flat[bounded])
+        return entry
+
+    solves0 = design.solves
+    initial = evaluate(x0, gradient=False)
+    iteration = [0]
+
+    def record(x):
+        e = evaluate(x, gradient=False)
+        iteration[0] += 1
+        history.iterates.append({"iteration": iteration[0], "solves": design.solves - solves0,
+                                 "objective": e["objective"], "change": e["change"]})
+        logger.info("design iteration %d: objective %.6g, %s change %.3g, %d solves", iteration[0],
+                    e["objective"], bounded, e["change"], design.solves - solves0)
+
+    history.iterates.append({"iteration": 0, "solves": 1, "objective": initial["objective"],
+                             "change": initial["change"]})
+    if method == "SLSQP":
+        constraints = [
+            {"type": "ineq", "fun": lambda x: (bound - evaluate(x, False)["change"]) / bound,
+             "jac": lambda x: -evaluate(x, True)["gradient"][1] / bound},
+            {"type": "ineq", "fun": lambda x: (bound + evaluate(x, False)["change"]) / bound,
+             "jac": lambda x: evaluate(x, True)["gradient"][1] / bound}]
+        out = optimize.minimize(lambda x: -evaluate(x, False)["objective"], x0, method="SLSQP",
+                                jac=lambda x: -evaluate(x, True)["gradient"][0], bounds=list(zip(lower, upper)),
+                                constraints=constraints, callback=record,
+                                options={"maxiter": maxiter, "ftol": 1e-9})
+    elif method == "L-BFGS-B":
+        def penalised(x):
+            e = evaluate(x, True)
+            excess = abs(e["change"]) - bound
+            value = -e["objective"] + (penalty * (excess / bound) ** 2 if excess > 0 else 0.0)
+            grad = -e["gradient"][0]
+            if excess > 0:
+                grad = grad + 2.0 * penalty * excess / bound**2 * np.sign(e["change"]) * e["gradient"][1]
+            e["penalised"] = value
+            return value, grad
+
+        def record_penalised(x):
+            record(x)
+            history.iterates[-1]["penalised"] = evaluate(x, False)["penalised"]
+
+        history.iterates[0]["penalised"] = penalised(x0)[0]
+        out = optimize.minimize(penalised, x0, method="L-BFGS-B", jac=True, bounds=list(zip(lower, upper)),
+                                callback=record_penalised, options={"maxiter": maxiter})
+    else:
+        constraints = [{"type": "ineq", "fun": lambda x: (bound - evaluate(x, False)["change"]) / bound},
+                       {"type": "ineq", "fun": lambda x: (bound + evaluate(x, False)["change"]) / bound},
+                       {"type": "ineq", "fun": lambda x: x - lower}, {"type": "ineq", "fun": lambda x: upper - x}]
+        out = optimize.minimize(lambda x: -evaluate(x, False)["objective"], x0, method="COBYLA",
+                                constraints=constraints, callback=record,
+                                options={"maxiter": maxiter, "rhobeg": 0.25, "tol": 1e-6})
+    feasible = [e for e in cache.values() if e["feasible"]]
+    best = max(feasible, key=lambda e: e["objective"]) if feasible else initial
+    design.set(unpack(best["x"]))
+    design.problem.restore(best["state"])
+    result_parameters = {name: (best["x"][s0:s0 + n] * scales[name] if cellwise else float(best["x"][s0]
+                                                                                           * scales[name]))
+                         for name, s0, n, cellwise in layout}
+    return DesignResult(result_parameters, best["objective"], best["change"], initial["objective"],
+                        design.solves - solves0, history, str(out.message))
