@@ -45,7 +45,8 @@ from mpi4py import MPI
 
 from foambase.errors import InputError
 
-__all__ = ["DesignHistory", "DesignResult", "OrientationDesign", "SERVOS", "SceneDesign", "optimize_probe"]
+__all__ = ["MISFIT_SCALES", "DesignHistory", "DesignResult", "OrientationDesign", "SERVOS", "SceneDesign",
+           "match_probes", "optimize_probe"]
 
 logger = logging.getLogger(__name__)
 
@@ -407,7 +408,7 @@ class DesignHistory:
 
 @dataclass
 class DesignResult:
-    """The outcome of :func:`optimize_probe`."""
+    """The outcome of :func:`optimize_probe` or :func:`match_probes`."""
 
     parameters: dict[str, Any]     #: the best feasible design found (scalars; per-cell arrays global, gathered)
     objective: float               #: its objective (the probe, signed so that larger is better)
@@ -416,6 +417,7 @@ class DesignResult:
     solves: int                    #: scene solves used
     history: DesignHistory
     message: str
+    achieved: dict[str, float] = field(default_factory=dict)  #: the targeted probes (:func:`match_probes`)
 
 
 def optimize_probe(design: SceneDesign, probe: str, parameters: Sequence[str], bounds: Mapping[str, tuple],
@@ -586,3 +588,107 @@ def optimize_probe(design: SceneDesign, probe: str, parameters: Sequence[str], b
                          for name, s0, n, cellwise in layout}
     return DesignResult(result_parameters, best["objective"], best["change"], initial["objective"],
                         design.solves - solves0, history, str(out.message))
+
+
+#: The scale of a probe's misfit in :func:`match_probes` (its units): 1 mm for lengths, 1 degree for angles.
+MISFIT_SCALES: dict[str, float] = {"center_height": 1e-3, "tip_deflection": 1e-3, "center_rotation": 1.0,
+                                   "center_tilt_x": 1.0, "center_tilt_y": 1.0}
+
+
+def match_probes(design: SceneDesign, targets: Mapping[str, float], parameters: Sequence[str],
+                 bounds: Mapping[str, tuple], *, scales: Mapping[str, float] | None = None, tol: float = 1e-10,
+                 max_solves: int = 40) -> DesignResult:
+    """Find scalar parameters whose probes at the last step equal ``targets`` (e.g. the offset giving a twist).
+
+    Bounded Gauss–Newton (``scipy.optimize.least_squares``, trust-region reflective) on the misfits
+    ``(probe − target) / s`` (``s``: :data:`MISFIT_SCALES`, 1 mm or 1°), with the adjoint gradients as the
+    Jacobian: one scene solve and one factorization with one adjoint solve per target per evaluation. As many
+    targets as parameters: the solution of the equations; fewer: a solution near the initial design (the method's
+    steps are least-norm in the scaled parameters); a target outside what the bounds allow: the bounded
+    least-squares fit, reported with its misfit (``DesignResult.message``; check ``achieved``).
+
+    Parameters
+    ----------
+    design
+        The scene (its current parameters are the initial design; it is left at the result).
+    targets
+        ``{probe: value}`` in the probe's units (m, deg).
+    parameters, bounds, scales
+        Scalar parameter names (:meth:`SceneDesign.parameters`), ``{name: (lo, hi)}``, typical sizes (default 1).
+    tol
+        Relative tolerance on the scaled parameters and the misfit (``least_squares``' ``xtol``, ``ftol``).
+    max_solves
+        Scene solves at most.
+
+    Returns
+    -------
+    DesignResult
+        ``objective`` = −|misfit|² / 2 (0 when the targets are met), ``change`` = 0, ``history`` with every
+        evaluation (``iterates``: the same, one per solve), ``achieved`` the targeted probes.
+
+    """
+    from scipy import optimize
+
+    if not targets:
+        raise InputError("match_probes: give at least one target {probe: value}")
+    for name, value in targets.items():
+        if name not in design.probes:
+            raise InputError(f"probe {name!r} is not built (probes: {sorted(design.probes)})")
+        if not math.isfinite(float(value)):
+            raise InputError(f"target {name} = {value!r} is not a finite number")
+    for name in parameters:
+        design._check(name)
+        if isinstance(design.get(name), np.ndarray):
+            raise InputError(f"match_probes takes scalar parameters; {name!r} is per cell (use optimize_probe)")
+        if name not in bounds:
+            raise InputError(f"parameter {name!r} has no bounds")
+    scales = {n: 1.0 for n in parameters} | dict(scales or {})
+    names = list(targets)
+    s = np.array([MISFIT_SCALES.get(n, 1.0) for n in names])
+    t = np.array([float(targets[n]) for n in names])
+    x0 = np.array([design.get(n) / scales[n] for n in parameters])
+    lower = np.array([bounds[n][0] / scales[n] for n in parameters])
+    upper = np.array([bounds[n][1] / scales[n] for n in parameters])
+    if np.any(x0 < lower) or np.any(x0 > upper):
+        raise InputError(f"the initial design {dict(zip(parameters, x0 * [scales[n] for n in parameters]))} lies "
+                         f"outside the bounds {dict(bounds)}")
+    history = DesignHistory()
+    solves0 = design.solves
+    state: dict[str, Any] = {}
+
+    def at(x):
+        x = np.asarray(x, dtype=float)
+        if state.get("x") is None or not np.array_equal(state["x"], x):
+            design.set({n: float(v) * scales[n] for n, v in zip(parameters, x)})
+            values = design.solve()
+            f = np.array([values[n] for n in names])
+            state.update(x=x.copy(), f=f, jac=None)
+            misfit = (f - t) / s
+            history.evaluations.append({"solves": design.solves - solves0, "objective": -0.5 * float(misfit @ misfit),
+                                        "change": 0.0, "feasible": True,
+                                        "parameters": {n: float(v) * scales[n] for n, v in zip(parameters, x)},
+                                        "probes": dict(zip(names, f.tolist()))})
+            logger.info("match_probes: %s -> %s", history.evaluations[-1]["parameters"], dict(zip(names, f)))
+        return state
+
+    def residual(x):
+        return (at(x)["f"] - t) / s
+
+    def jacobian(x):
+        entry = at(x)
+        if entry["jac"] is None:
+            g = design.gradient(names, list(parameters))
+            entry["jac"] = np.array([[g[k][p] * scales[p] for p in parameters] for k in names]) / s[:, None]
+        return entry["jac"]
+
+    initial = -0.5 * float(residual(x0) @ residual(x0))
+    out = optimize.least_squares(residual, x0, jac=jacobian, bounds=(lower, upper), method="trf", x_scale=1.0,
+                                 xtol=tol, ftol=tol, gtol=tol, max_nfev=max_solves)
+    best = max(range(len(history.evaluations)), key=lambda i: history.evaluations[i]["objective"])
+    x_best = np.array([history.evaluations[best]["parameters"][n] / scales[n] for n in parameters])
+    at(x_best)  # the design is left at the best evaluation (a solve only if the last one was not it)
+    for i, e in enumerate(history.evaluations):
+        history.iterates.append({"iteration": i, "solves": e["solves"], "objective": e["objective"], "change": 0.0})
+    return DesignResult(dict(history.evaluations[best]["parameters"]), history.evaluations[best]["objective"], 0.0,
+                        initial, design.solves - solves0, history, str(out.message),
+                        dict(history.evaluations[best]["probes"]))

@@ -1,6 +1,8 @@
-"""Design optimisation (fenicsfoam.design.optimize_probe) on a small Tripod case: L-BFGS-B over a per-cell
-orientation field improves its objective monotonically; SLSQP over the offset angle and densities improves the twist
-within the height bound; the gradient-free search reaches the same optimum; bad requests are refused."""
+"""Design optimisation (fenicsfoam.design.optimize_probe, match_probes) on small Tripod cases: L-BFGS-B over a
+per-cell orientation field improves its objective monotonically; SLSQP over the offset angle and densities improves
+the twist within the height bound and stops at a KKT point; the gradient-free search reaches the same optimum;
+match_probes recovers known parameters (case A's offset and centre density from its twist and height, case B's
+spiral pitch from its twist) that it did not see; bad requests are refused."""
 
 import tomllib
 from pathlib import Path
@@ -8,13 +10,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fenicsfoam.design import SceneDesign, optimize_probe
+from fenicsfoam.design import SceneDesign, match_probes, optimize_probe
 from fenicsfoam.scene import parse_scene
 
 pytestmark = pytest.mark.mpi
 
 ROOT = Path(__file__).resolve().parents[1]
 BOUNDS = {"orientation.offset_deg": (0.0, 90.0), "density:arms": (0.22, 0.34), "density:centre": (0.12, 0.22)}
+ALONG_ARMS = {"arm0": [1.0, 0.0, 0.0], "arm1": [-0.5, 0.75 ** 0.5, 0.0], "arm2": [-0.5, -(0.75 ** 0.5), 0.0]}
 SCALES = {"orientation.offset_deg": 45.0, "density:arms": 0.1, "density:centre": 0.1}
 
 
@@ -22,6 +25,8 @@ def case_a() -> SceneDesign:
     data = tomllib.loads((ROOT / "demos" / "scenes" / "tripod_case_a.toml").read_text())
     data["geometry"]["h"] = 0.01
     data["outputs"] = {"png": False, "xdmf": False}
+    # l along the arms turned by offset_deg = 30°: case A's l axes, with the offset the angle from the arms
+    data["orientation"]["directions"] = ALONG_ARMS
     data["orientation"]["offset_deg"] = 30.0
     return SceneDesign(parse_scene(data))
 
@@ -38,11 +43,25 @@ def test_lbfgs_over_a_per_cell_field_improves_monotonically():
 
 
 def test_slsqp_and_cobyla_agree_on_the_offset_and_densities():
-    slsqp = optimize_probe(case_a(), "center_rotation", list(BOUNDS), BOUNDS, maximize=False, bound=1e-3,
+    design = case_a()
+    slsqp = optimize_probe(design, "center_rotation", list(BOUNDS), BOUNDS, maximize=False, bound=1e-3,
                            method="SLSQP", maxiter=15, scales=SCALES)
     assert slsqp.objective > slsqp.initial_objective + 3.0
     assert abs(slsqp.change) <= 1e-3 * (1 + 1e-9) and abs(slsqp.change) > 0.99e-3  # the bound is active
     assert slsqp.parameters["density:arms"] == pytest.approx(0.22, abs=1e-6)  # at its lower bound
+    # KKT at the result (fresh adjoint gradients, scaled parameters): the twist's gradient over the free parameters
+    # is a multiple μ of the height's (the active bound); a twist raised further would carry the height beyond the
+    # bound (the multiplier's sign); and the Lagrangian's gradient pushes density:arms against its lower bound
+    free = ["orientation.offset_deg", "density:centre"]
+    g = design.gradient(["center_rotation", "center_height"], list(BOUNDS))
+    grad_f = {p: -g["center_rotation"][p] * SCALES[p] for p in BOUNDS}
+    grad_h = {p: g["center_height"][p] * SCALES[p] for p in BOUNDS}
+    a, b = np.array([grad_h[p] for p in free]), np.array([grad_f[p] for p in free])
+    mu = float(a @ b / (a @ a))
+    residual = np.linalg.norm(b - mu * a) / np.linalg.norm(b)
+    assert residual < 1e-3, (residual, grad_f, grad_h)
+    assert mu * np.sign(slsqp.change) > 0
+    assert grad_f["density:arms"] - mu * grad_h["density:arms"] < 0
     cobyla = optimize_probe(case_a(), "center_rotation", list(BOUNDS), BOUNDS, maximize=False, bound=1e-3,
                             method="COBYLA", maxiter=60, scales=SCALES)
     assert cobyla.objective == pytest.approx(slsqp.objective, rel=2e-3)
@@ -50,6 +69,40 @@ def test_slsqp_and_cobyla_agree_on_the_offset_and_densities():
                                                                         abs=0.5)
     level = slsqp.objective * (1 - 1e-3)
     assert slsqp.history.solves_to_reach(level) < cobyla.history.solves_to_reach(level)
+
+
+def test_match_probes_recovers_an_unseen_offset_and_centre_density():
+    # a forward run at offset 45°, centre density 0.18 gives the targets; from 30°, 0.15 they are matched again
+    truth = case_a()
+    truth.set({"orientation.offset_deg": 45.0, "density:centre": 0.18})
+    expected = truth.solve()
+    targets = {k: expected[k] for k in ("center_rotation", "center_height")}
+    design = case_a()
+    result = match_probes(design, targets, ["orientation.offset_deg", "density:centre"],
+                          {"orientation.offset_deg": (0.0, 90.0), "density:centre": (0.12, 0.22)},
+                          scales={"orientation.offset_deg": 45.0, "density:centre": 0.1})
+    assert result.parameters["orientation.offset_deg"] == pytest.approx(45.0, abs=1e-4)
+    assert result.parameters["density:centre"] == pytest.approx(0.18, abs=1e-6)
+    for k, v in targets.items():
+        assert result.achieved[k] == pytest.approx(v, rel=1e-6)
+    assert result.objective > -1e-12 and result.solves <= 12, (result.objective, result.solves)
+    assert design.values()["center_rotation"] == pytest.approx(targets["center_rotation"], rel=1e-6)  # left there
+
+
+def test_match_probes_recovers_case_b_spiral_pitch():
+    def case_b():
+        data = tomllib.loads((ROOT / "demos" / "scenes" / "tripod_case_b.toml").read_text())
+        data["geometry"]["h"] = 0.01
+        data["outputs"] = {"png": False, "xdmf": False}
+        return SceneDesign(parse_scene(data))
+
+    truth = case_b()
+    truth.set({"orientation.pitch_deg": 52.0})
+    twist = truth.solve()["center_rotation"]
+    result = match_probes(case_b(), {"center_rotation": twist}, ["orientation.pitch_deg"],
+                          {"orientation.pitch_deg": (20.0, 70.0)}, scales={"orientation.pitch_deg": 10.0})
+    assert result.parameters["orientation.pitch_deg"] == pytest.approx(52.0, abs=1e-4)
+    assert result.achieved["center_rotation"] == pytest.approx(twist, rel=1e-6)
 
 
 def test_bad_requests_are_refused():
@@ -64,3 +117,9 @@ def test_bad_requests_are_refused():
         optimize_probe(design, "tip_deflection", ["density:arms"], BOUNDS)
     with pytest.raises(ValueError, match="outside the bounds"):
         optimize_probe(design, "center_rotation", ["density:arms"], {"density:arms": (0.31, 0.34)})
+    with pytest.raises(ValueError, match="per cell"):
+        match_probes(design, {"center_rotation": -10.0}, ["density"], {"density": (0.1, 0.3)})
+    with pytest.raises(ValueError, match="not a finite number"):
+        match_probes(design, {"center_rotation": float("nan")}, ["density:arms"], BOUNDS)
+    with pytest.raises(ValueError, match="at least one target"):
+        match_probes(design, {}, ["density:arms"], BOUNDS)
