@@ -571,6 +571,13 @@ def control_servos(source, targets: Mapping[str, float], *, comm=None, servo_ran
     """
     targets = dict(targets)
     _check_targets(targets, 3)
+    if out_dir is not None:  # before any work: a directory that can take control.json
+        from mpi4py import MPI
+
+        from foambase.files import check_output_dir
+        from foambase.mpi import on_rank0
+        on_rank0(MPI.COMM_WORLD if comm is None else comm, lambda: check_output_dir(out_dir, "out_dir"),
+                 f"the output directory {out_dir} cannot be used")
     controller = InverseController(source, comm, servo_range, tolerances, max_iterations)
     try:
         result = controller.solve(targets)
@@ -587,11 +594,12 @@ def control_servos(source, targets: Mapping[str, float], *, comm=None, servo_ran
 # The command
 # --------------------------------------------------------------------------------------------------
 def _arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("scene", type=Path, help="a Tripod scene file (TOML) with loads.servos = true")
+    parser.add_argument("scene", type=cli.nonempty_path, help="a Tripod scene file (TOML) with loads.servos = true")
     parser.add_argument("--target", action="append", default=[], metavar="NAME=VALUE", required=True,
                         help="a target pose component: center_height (m), center_rotation, center_tilt_x, "
                              "center_tilt_y (deg); repeat for up to three")
-    parser.add_argument("--out", type=Path, required=True, help="output directory (control.json)")
+    parser.add_argument("--out", type=cli.nonempty_path, required=True,
+                        help="output directory (control.json; created if needed, other files in it stay)")
     parser.add_argument("--servo-range", type=float, nargs=2, default=list(SERVO_RANGE), metavar=("LO", "HI"),
                         help="bounds of every servo angle (deg)")
     parser.add_argument("--tol-m", type=float, default=TOLERANCES["m"], help="tolerance of a height target (m)")
@@ -618,9 +626,15 @@ def _run(args: argparse.Namespace) -> int:
     from mpi4py import MPI
     from petsc4py import PETSc
 
+    from foambase.files import check_output_dir
+    from foambase.mpi import on_rank0
+    from foambase.petsc_options import option_names, unused_command_line_options
+
     comm = MPI.COMM_WORLD
+    on_rank0(comm, lambda: check_output_dir(args.out, "--out"), f"--out {args.out} cannot be used")
+    db = PETSc.Options()
     if args.passthrough:
-        PETSc.Options().insertString(" ".join(args.passthrough))
+        db.insertString(" ".join(args.passthrough))
     try:
         result = control_servos(args.scene, parse_targets(args.target), comm=comm, servo_range=args.servo_range,
                                 tolerances={"m": args.tol_m, "deg": args.tol_deg},
@@ -629,6 +643,13 @@ def _run(args: argparse.Namespace) -> int:
         if comm.rank == 0:
             print(f"closest pose written to {args.out / 'control.json'} (reached = false)")
         raise exc
+    finally:
+        unused = unused_command_line_options(args.passthrough)
+        if unused:
+            logger.warning("PETSc options after '--' that nothing used: %s (misspelt, or not options of this "
+                           "solver; the scene's solver options take the prefix -%s)", " ".join(unused), "scene_")
+        for name in option_names(args.passthrough):  # this run's: a later command in the process starts clean
+            db.delValue(name.lstrip("-"))
     if comm.rank == 0:
         print("servo (deg): " + ", ".join(f"{a:.6f}" for a in result.servo_deg))
         for name, value in result.target.items():

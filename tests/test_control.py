@@ -125,6 +125,9 @@ def test_command_line_exit_codes(tmp_path, forward, capsys):
     with pytest.raises(SystemExit) as exit_info:
         main(["control", str(scene), "--target", "center_height=nope", "--out", str(tmp_path / "x")])
     assert exit_info.value.code == 2 and not (tmp_path / "x").exists()
+    (tmp_path / "a_file").write_text("")
+    assert main(["control", str(scene), "--target", "center_height=0.02", "--out", str(tmp_path / "a_file")]) == 2
+    assert "is a file, not a directory" in capsys.readouterr().err
     assert main(["control", str(scene), "--target", "center_height=0.08", "--out", str(tmp_path / "far")]) == 3
     assert json.loads((tmp_path / "far" / "control.json").read_text())["reached"] is False
     status = main(["control", str(scene), "--target", f"center_height={forward['center_height']!r}",
