@@ -604,8 +604,9 @@ def match_probes(design: SceneDesign, targets: Mapping[str, float], parameters: 
     ``(probe − target) / s`` (``s``: :data:`MISFIT_SCALES`, 1 mm or 1°), with the adjoint gradients as the
     Jacobian: one scene solve and one factorization with one adjoint solve per target per evaluation. As many
     targets as parameters: the solution of the equations; fewer: a solution near the initial design (the method's
-    steps are least-norm in the scaled parameters); a target outside what the bounds allow: the bounded
-    least-squares fit, reported with its misfit (``DesignResult.message``; check ``achieved``).
+    steps are least-norm in the scaled parameters); a target out of reach (beyond the bounds, or beyond the most
+    the parameters can give): the bounded least-squares fit, the closest design (compare ``achieved`` with the
+    targets; it is not an error).
 
     Parameters
     ----------

@@ -105,6 +105,20 @@ def test_match_probes_recovers_case_b_spiral_pitch():
     assert result.achieved["center_rotation"] == pytest.approx(twist, rel=1e-6)
 
 
+def test_match_probes_beyond_reach_gives_the_closest_design():
+    # no offset twists case A by 20° (the twist peaks near 52°): the result is the stationary point of the misfit,
+    # where the twist's derivative in the offset vanishes, not an error
+    design = case_a()
+    design.solve()
+    slope0 = design.gradient(["center_rotation"], ["orientation.offset_deg"])["center_rotation"]
+    result = match_probes(design, {"center_rotation": -20.0}, ["orientation.offset_deg"],
+                          {"orientation.offset_deg": (0.0, 90.0)}, scales={"orientation.offset_deg": 45.0})
+    assert -result.achieved["center_rotation"] < 15.0
+    assert 40.0 < result.parameters["orientation.offset_deg"] < 65.0
+    slope = design.gradient(["center_rotation"], ["orientation.offset_deg"])["center_rotation"]
+    assert abs(slope["orientation.offset_deg"]) < 1e-3 * abs(slope0["orientation.offset_deg"])
+
+
 def test_bad_requests_are_refused():
     design = case_a()
     with pytest.raises(ValueError, match="method must be"):
