@@ -21,14 +21,14 @@ ALONG_ARMS = {"arm0": [1.0, 0.0, 0.0], "arm1": [-0.5, 0.75 ** 0.5, 0.0], "arm2":
 SCALES = {"orientation.offset_deg": 45.0, "density:arms": 0.1, "density:centre": 0.1}
 
 
-def case_a() -> SceneDesign:
+def case_a(comm=None) -> SceneDesign:
     data = tomllib.loads((ROOT / "demos" / "scenes" / "tripod_case_a.toml").read_text())
     data["geometry"]["h"] = 0.01
     data["outputs"] = {"png": False, "xdmf": False}
     # l along the arms turned by offset_deg = 30°: case A's l axes, with the offset the angle from the arms
     data["orientation"]["directions"] = ALONG_ARMS
     data["orientation"]["offset_deg"] = 30.0
-    return SceneDesign(parse_scene(data))
+    return SceneDesign(parse_scene(data), comm)
 
 
 def test_lbfgs_over_a_per_cell_field_improves_monotonically():
@@ -117,6 +117,29 @@ def test_match_probes_beyond_reach_gives_the_closest_design():
     assert 40.0 < result.parameters["orientation.offset_deg"] < 65.0
     slope = design.gradient(["center_rotation"], ["orientation.offset_deg"])["center_rotation"]
     assert abs(slope["orientation.offset_deg"]) < 1e-3 * abs(slope0["orientation.offset_deg"])
+
+
+def test_distributed_equals_serial():
+    # under mpirun: the design on all ranks against a serial copy on each rank (COMM_SELF); serially trivially true
+    from mpi4py import MPI
+
+    parameters = ["orientation.offset_deg", "density:arms", "density:centre"]
+    results = []
+    for comm in (MPI.COMM_WORLD, MPI.COMM_SELF):
+        design = case_a(comm)
+        values = design.solve()
+        gradient = design.gradient(["center_rotation", "center_height"], parameters)
+        match = match_probes(design, {"center_rotation": -7.0}, ["orientation.offset_deg"],
+                             {"orientation.offset_deg": (0.0, 90.0)}, scales={"orientation.offset_deg": 45.0})
+        results.append((values, gradient, match))
+    (v1, g1, m1), (v2, g2, m2) = results
+    for k in v1:
+        assert v1[k] == pytest.approx(v2[k], rel=1e-9, abs=1e-12)
+    for k in g1:
+        for p in parameters:
+            assert g1[k][p] == pytest.approx(g2[k][p], rel=1e-7)
+    assert m1.parameters["orientation.offset_deg"] == pytest.approx(m2.parameters["orientation.offset_deg"], abs=1e-7)
+    assert m1.solves == m2.solves
 
 
 def test_bad_requests_are_refused():
