@@ -492,6 +492,7 @@ def optimize_probe(design: SceneDesign, probe: str, parameters: Sequence[str], b
     cache: dict[bytes, dict[str, Any]] = {}
     history = DesignHistory()
     baseline: dict[str, float] = {}
+    loaded = {"key": None}  # the design whose equilibrium the problem holds (the same on every rank)
 
     def unpack(x):
         values = {}
@@ -506,6 +507,7 @@ def optimize_probe(design: SceneDesign, probe: str, parameters: Sequence[str], b
         if entry is None:
             design.set(unpack(x))
             values = design.solve()
+            loaded["key"] = key
             if not baseline:
                 baseline.update(values)
             inside = bool(np.all(x >= lower - 1e-9) and np.all(x <= upper + 1e-9))
@@ -516,9 +518,10 @@ def optimize_probe(design: SceneDesign, probe: str, parameters: Sequence[str], b
             entry["state"] = design.problem.snapshot()
             entry["x"] = np.array(x, dtype=float)
         if gradient and "gradient" not in entry:
-            if not np.array_equal(design.problem.u.x.array, entry["state"][0]):
+            if loaded["key"] != key:  # a decision every rank takes alike: set and restore are collective
                 design.set(unpack(x))
                 design.problem.restore(entry["state"])
+                loaded["key"] = key
             g = design.gradient([probe, bounded], list(parameters))
             flat = {}
             for which in (probe, bounded):

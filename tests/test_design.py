@@ -42,7 +42,7 @@ def test_lbfgs_over_a_per_cell_field_improves_monotonically():
     assert -design.solve()["center_rotation"] == pytest.approx(result.objective, rel=1e-9)
 
 
-def test_slsqp_and_cobyla_agree_on_the_offset_and_densities():
+def test_slsqp_raises_the_twist_to_a_kkt_point():
     design = case_a()
     slsqp = optimize_probe(design, "center_rotation", list(BOUNDS), BOUNDS, maximize=False, bound=1e-3,
                            method="SLSQP", maxiter=15, scales=SCALES)
@@ -62,13 +62,20 @@ def test_slsqp_and_cobyla_agree_on_the_offset_and_densities():
     assert residual < 1e-3, (residual, grad_f, grad_h)
     assert mu * np.sign(slsqp.change) > 0
     assert grad_f["density:arms"] - mu * grad_h["density:arms"] < 0
+
+
+@pytest.mark.slow
+def test_cobyla_reaches_slsqps_optimum_with_more_solves():
+    slsqp = optimize_probe(case_a(), "center_rotation", list(BOUNDS), BOUNDS, maximize=False, bound=1e-3,
+                           method="SLSQP", maxiter=15, scales=SCALES)
     cobyla = optimize_probe(case_a(), "center_rotation", list(BOUNDS), BOUNDS, maximize=False, bound=1e-3,
                             method="COBYLA", maxiter=60, scales=SCALES)
     assert cobyla.objective == pytest.approx(slsqp.objective, rel=2e-3)
     assert cobyla.parameters["orientation.offset_deg"] == pytest.approx(slsqp.parameters["orientation.offset_deg"],
                                                                         abs=0.5)
     level = slsqp.objective * (1 - 1e-3)
-    assert slsqp.history.solves_to_reach(level) < cobyla.history.solves_to_reach(level)
+    n_cobyla = cobyla.history.solves_to_reach(level)  # None: never within 1e-3 of the optimum
+    assert n_cobyla is None or slsqp.history.solves_to_reach(level) < n_cobyla
 
 
 def test_match_probes_recovers_an_unseen_offset_and_centre_density():
