@@ -110,7 +110,9 @@ def test_a_scene_without_servos_is_refused():
 def write_scene(path: Path) -> Path:
     data = case_b()
     lines = [f'name = "{data["name"]}"', f'probes = {json.dumps(PROBES)}', "[geometry]", 'builder = "tripod"',
-             "h = 0.008", "[regions.plate]"]
+             "h = 0.008", "[fem]"]
+    lines += [f"{k} = {json.dumps(v)}" for k, v in data["fem"].items() if k != "petsc"]
+    lines += ["[regions.plate]"]
     lines += [f"{k} = {json.dumps(v)}" for k, v in data["regions"]["plate"].items()]
     lines += ["[orientation]"] + [f"{k} = {json.dumps(v)}" for k, v in data["orientation"].items()]
     lines += ["[loads]", "gravity = [0.0, 0.0, -9.81]", "servos = true", "[outputs]", "png = false", "xdmf = false"]
