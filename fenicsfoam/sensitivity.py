@@ -87,6 +87,9 @@ class Adjoint:
     def __init__(self, problem, prefix: str = "adjoint_"):
         if not prefix or not prefix.endswith("_"):
             raise InputError(f"the options prefix must be non-empty and end with '_', got {prefix!r}")
+        if any(hasattr(load, "add_jacobian") for load in problem.external.values()):
+            raise InputError("adjoint sensitivities do not cover cable loads (their tangent is assembled outside the "
+                             "forms): remove the scene's cables to differentiate it")
         self.problem = problem
         V = problem.V
         self._lam = fem.Function(V, name="adjoint")
@@ -173,7 +176,9 @@ class Adjoint:
         bs = V.dofmap.index_map_bs
         X = V.tabulate_dof_coordinates()[motion.dofs]
         self._w.x.array[:] = 0.0
-        self._w.x.array.reshape(-1, bs)[motion.dofs] = motion_direction(motion.motion, X, problem.loads.angles[name])
+        # only the components the motion prescribes move with its angle (a motion may leave some free)
+        self._w.x.array.reshape(-1, bs)[motion.dofs] = (motion_direction(motion.motion, X, problem.loads.angles[name])
+                                                        * motion.constrained())
         if self._action is None:
             self._action = fem.form(ufl.action(problem.jacobian_form, self._w))
         b = assemble_vector(self._action)
