@@ -274,9 +274,13 @@ class SceneDesign:
     # ----------------------------------------------------------------------------------------------
     # Solves
     # ----------------------------------------------------------------------------------------------
-    def values(self) -> dict[str, float]:
-        """The probes at the current state."""
-        return {name: float(probe(self.problem.u)) for name, probe in self.probes.items()}
+    def values(self) -> dict[str, Any]:
+        """The probes at the current state (floats; a vector probe ``KIND:GROUP`` as an array)."""
+        out = {}
+        for name, probe in self.probes.items():
+            value = probe(self.problem.u)
+            out[name] = float(value) if np.ndim(value) == 0 else np.asarray(value, dtype=float)
+        return out
 
     def solve(self) -> dict[str, float]:
         """Run the whole schedule from the reference state; the probes at the last step (one scene solve)."""
@@ -323,6 +327,10 @@ class SceneDesign:
         for name in probes:
             if name not in self.probes:
                 raise InputError(f"probe {name!r} is not built (probes: {sorted(self.probes)})")
+            if not hasattr(self.probes[name], "gradient"):
+                differentiable = sorted(k for k, p in self.probes.items() if hasattr(p, "gradient"))
+                raise InputError(f"probe {name!r} has no gradient; differentiable probes of this scene: "
+                                 f"{differentiable}")
         from fenicsfoam.sensitivity import material_coefficients
 
         material = [p for p in parameters if p not in SERVOS and not p.startswith("orientation")]

@@ -596,10 +596,11 @@ class ElasticityProblem:
             self.rotation.update()
 
     def reset(self) -> None:
-        """Back to the reference state: ``u = 0``, every load (gravity factor, angles, translations) zero."""
+        """Back to the reference state: ``u = 0``, every load zero (gravity, angles, translations, load factors)."""
         self.u.x.array[:] = 0.0
         self.loads = LoadState(gravity=0.0, angles=dict.fromkeys(self.motions, 0.0),
-                               translations={n: np.zeros(3) for n in self.motions})
+                               translations={n: np.zeros(3) for n in self.motions},
+                               factors=dict.fromkeys(self.external, 0.0))
         self._apply_loads(self.loads)
         self._synced = (None, None)
         if self.rotation is not None:

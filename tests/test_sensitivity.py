@@ -199,3 +199,20 @@ def test_cable_loads_are_refused():
     design = SceneDesign(parse_scene(data))
     with pytest.raises(InputError, match="cable loads"):
         _ = design.adjoint
+
+
+def test_group_probes_are_values_without_gradients():
+    # a scene with KIND:GROUP probes (vectors, the chamber's volume) solves as a design; asking their gradient is
+    # refused, naming the differentiable probes
+    from foambase.errors import InputError
+
+    data = tomllib.loads((SCENES / "finger_pneumatic.toml").read_text())
+    data["geometry"]["h"] = 0.004
+    data["fem"]["degree"] = 1
+    data["outputs"] = {"png": False, "xdmf": False}
+    data["steps"] = data["steps"][:2]
+    design = SceneDesign(parse_scene(data))
+    values = design.solve()
+    assert values["displacement:tip"].shape == (3,) and values["volume:chamber"] > 0
+    with pytest.raises(InputError, match="'volume:chamber' has no gradient"):
+        design.gradient(["volume:chamber"], ["E_solid"])
