@@ -139,6 +139,8 @@ class SceneDesign:
                 raise InputError(f"unknown probe {name!r}; valid: {', '.join(PROBE_KINDS)}")
             if PROBE_KINDS[name].needs == "tripod" and scene.builder != "tripod":
                 raise InputError(f"probe {name!r} needs the tripod builder, the scene uses {scene.builder!r}")
+        from fenicsfoam.scene.build import _check_default_tables
+        _check_default_tables(scene, "designs")  # before anything is built
         self.scene = scene
         self.model = build_model(scene, self.comm)
         self.problem = problem = self.model.problem

@@ -106,3 +106,18 @@ def test_a_function_field_outside_the_table_is_refused_naming_the_region():
     data["regions"]["arms"]["density"] = {"function": "tests.test_scene_graded:out_of_table"}
     with pytest.raises(SceneError, match=r"region 'arms': \d+ cell\(s\) have density outside the tabulated range"):
         run_scene(parse_scene(data))
+
+
+def test_graded_fields_and_designs_refuse_another_foam_table():
+    # per-cell constants come from the default table: a region naming another one is refused before any mesh
+    from fenicsfoam.design import SceneDesign
+    from fenicsfoam.scene import SceneError
+
+    data = case_a()
+    data["blends"] = [{"regions": ["arms", "centre"], "width": 0.005}]
+    data["regions"]["arms"].update(table="equiaxed", density=0.18)  # the equiaxed table holds 18 % only
+    with pytest.raises(SceneError, match="regions.arms.table: graded foam fields read the default foam table"):
+        run_scene(parse_scene(data))
+    del data["blends"]
+    with pytest.raises(SceneError, match="regions.arms.table: designs read the default foam table"):
+        SceneDesign(parse_scene(data))

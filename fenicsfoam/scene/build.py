@@ -105,6 +105,15 @@ def _representative(spec, key: str) -> float:
     return 0.5 * (lo + hi) if key == "density" else math.sqrt(lo * hi)
 
 
+def _check_default_tables(scene: Scene, what: str) -> None:
+    """Per-cell foam constants (:mod:`fenicsfoam.grading`) read the default (cube) foam table only."""
+    for region in scene.regions:
+        table = region.parameters.get("table")
+        if region.material == "foam" and table not in (None, "cube"):
+            raise SceneError(f"regions.{region.name}.table: {what} read the default foam table 'cube' only, got "
+                             f"{table!r}; remove the key or use numbers without blends")
+
+
 def _material_record(material) -> dict[str, Any]:
     return {"type": type(material).__name__, **asdict(material)}
 
@@ -264,6 +273,7 @@ def build_model(scene: Scene, comm) -> Model:
     materials = {tag: resolved[region.name] for region in scene.regions for tag in region.tags}
     records = {region.name: _material_record(resolved[region.name]) for region in scene.regions}
     if scene.graded:  # per-cell density and γ through the table (fenicsfoam.grading)
+        _check_default_tables(scene, "graded foam fields")
         from fenicsfoam.grading import CellMaterials
         try:
             cells = CellMaterials.from_regions(mesh, cell_tags, scene.regions, materials=resolved, blends=scene.blends)
