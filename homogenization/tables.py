@@ -20,15 +20,19 @@ Every sweep setting of box and foam writes a table of its own name (:attr:`Sweep
 polyhedral wall foam), each with its samples and provenance. :func:`shipped_tables` lists those in
 :data:`DATA_DIR`.
 
-The sweep (:func:`run_sweep`) caches every finished sample as one JSON file named after all its inputs
-(written to a temporary file and renamed, so a file present is complete): an interrupted sweep resumes where it
-stopped and never recomputes a sample. Under MPI the samples are dealt round-robin to the ranks, each rank
-using ``cores / ranks`` FFTW threads; rank 0 assembles the table.
+The sweep (:func:`run_sweep`) caches every finished sample as one JSON file named after its inputs and a hash of
+their exact values (written to a temporary file and renamed, so a file present is complete): an interrupted sweep
+resumes where it stopped and never recomputes a sample. An entry that cannot be read, or whose inputs are not the
+sample's, is named in a warning and recomputed. A sample that fails (a density the foam cannot reach, CG not
+converging) is recorded beside the entries as ``<entry>.failed.txt`` while the sweep goes on with the others; the
+sweep then raises one error listing every failure, and the next run retries them. Under MPI the samples are
+dealt round-robin to the ranks, each rank using ``cores / ranks`` FFTW threads; rank 0 assembles the table.
 """
 
 from __future__ import annotations
 
 import csv
+import hashlib
 import json
 import logging
 import os
@@ -147,11 +151,53 @@ def grid(densities: Iterable[float] = DENSITIES, gammas: Iterable[float] = GAMMA
     return sorted(Sample(float(d), float(g), int(s)) for d in densities for g in gammas for s in seeds)
 
 
+def _cache_key(sample: Sample, settings: SweepSettings) -> dict:
+    """The exact inputs that change a sample's result (floats by ``repr``, so nothing is rounded)."""
+    return {"density": repr(float(sample.density)), "gamma": repr(float(sample.gamma)), "seed": int(sample.seed),
+            "n_cells": int(settings.n_cells), "resolution": int(settings.resolution), "tol": repr(float(settings.tol)),
+            "box": settings.box, "distance": settings.distance}
+
+
 def cache_name(sample: Sample, settings: SweepSettings) -> str:
-    """File name of a sample's cache entry: every input that changes its result."""
+    """File name of a sample's cache entry: its inputs, readable and rounded, then a hash of their exact values.
+
+    Two sweeps that differ in any input (e.g. tol 1e-4 and 1.4e-4, which round alike) never share an entry.
+    """
     foam = "" if (settings.box, settings.distance) == ("cube", "euclidean") else f"{settings.distance}_{settings.box}_"
+    digest = hashlib.sha256(json.dumps(_cache_key(sample, settings), sort_keys=True).encode()).hexdigest()[:12]
     return (f"{foam}d{sample.density:.4f}_g{sample.gamma:.4f}_s{sample.seed}_n{settings.n_cells}"
-            f"_N{settings.resolution}_tol{settings.tol:.0e}.json")
+            f"_N{settings.resolution}_tol{settings.tol:.1e}_{digest}.json")
+
+
+def _failure_record(entry: Path) -> Path:
+    """Where a failed sample's error is recorded: beside its (absent) cache entry."""
+    return entry.with_name(entry.stem + ".failed.txt")
+
+
+def read_cache_entry(path: str | os.PathLike, sample: Sample, settings: SweepSettings) -> dict | None:
+    """The row cached at ``path`` for ``sample``, or ``None`` when there is none to use.
+
+    A file that is not JSON, lacks a column, or holds another sample's or setting's inputs is named in a warning and
+    reported as absent, so that the sweep recomputes (and overwrites) it.
+    """
+    path = Path(path)
+    if not path.exists():
+        return None
+    try:
+        row = json.loads(path.read_text())
+        if not isinstance(row, dict):
+            raise ValueError(f"a JSON {type(row).__name__}, not an object")
+        missing = [c for c in SAMPLE_COLUMNS if c not in row]
+        if missing:
+            raise ValueError(f"no column {missing[0]!r}")
+        found = _cache_key(Sample(row["density"], row["gamma"], row["seed"]),
+                           SweepSettings(**{k: row[k] for k in ("n_cells", "resolution", "tol", "box", "distance")}))
+        if found != _cache_key(sample, settings):
+            raise ValueError(f"its inputs {found} are not this sample's")
+    except (OSError, ValueError, TypeError, UnicodeDecodeError) as exc:  # JSONDecodeError is a ValueError
+        log.warning("foam table cache entry %s cannot be used (%s); the sample is recomputed", path, exc)
+        return None
+    return row
 
 
 def table_paths(name: str = "cube", directory: str | os.PathLike = DATA_DIR) -> dict[str, Path]:
@@ -223,7 +269,7 @@ def run_sweep(samples: Sequence[Sample], settings: SweepSettings, cache_dir: str
     settings
         Resolution, cells per RVE and tolerance of every sample.
     cache_dir
-        One JSON file per finished sample (:func:`cache_name`); existing files are read, never recomputed.
+        One JSON file per finished sample (:func:`cache_name`); usable entries are read, never recomputed.
     comm
         MPI communicator (default ``MPI.COMM_WORLD``); samples are dealt round-robin to its ranks.
     threads
@@ -242,29 +288,39 @@ def run_sweep(samples: Sequence[Sample], settings: SweepSettings, cache_dir: str
     cache = Path(cache_dir)
     cache.mkdir(parents=True, exist_ok=True)
     threads = threads_per_rank(comm) if threads is None else threads
-    mine = [s for s in list(samples)[comm.rank::comm.size] if not (cache / cache_name(s, settings)).exists()]
+    entry = {s: cache / cache_name(s, settings) for s in samples}
+    mine = [s for s in list(samples)[comm.rank::comm.size] if read_cache_entry(entry[s], s, settings) is None]
     if stop_after is not None:
         mine = mine[:stop_after]
-    failure = None
+    failures = []
     bar = tqdm(mine, desc=f"foam samples (rank 0 of {comm.size})", unit="sample",
                disable=None if progress and comm.rank == 0 else True)  # None: shown only on a terminal
     for sample in bar:
         try:
             row = homogenize_sample(sample, settings, threads)
-        except Exception as exc:  # reported below on every rank, never swallowed
-            failure = (f"{sample}: {type(exc).__name__}: {exc}", exit_code(exc))
-            break
-        write_json_atomic(cache / cache_name(sample, settings), row, indent=1)
-    failures = [f for f in comm.allgather(failure) if f]
+        except Exception as exc:  # recorded and reported below on every rank, never swallowed
+            message = f"{sample}: {type(exc).__name__}: {exc}"
+            log.warning("foam sample failed, the sweep goes on with the others: %s", message)
+            write_text_atomic(_failure_record(entry[sample]), message + "\n")
+            failures.append((message, exit_code(exc)))
+            continue
+        write_json_atomic(entry[sample], row, indent=1)
+        _failure_record(entry[sample]).unlink(missing_ok=True)
+    failures = [f for rank_failures in comm.allgather(failures) for f in rank_failures]
     if failures:
-        error = ComputationError("foam sweep failed (finished samples stay cached): "
+        error = ComputationError(f"foam sweep: {len(failures)} sample(s) failed, recorded as *.failed.txt in "
+                                 f"{cache} and retried by the next run (finished samples stay cached): "
                                  + "; ".join(message for message, _ in failures))
         error.exit_code = failures[0][1]  # e.g. 2 for a density the foam cannot reach, 3 for no convergence
         raise error
     comm.barrier()
     if stop_after is not None:
         return None
-    return [json.loads((cache / cache_name(s, settings)).read_text()) for s in sorted(samples)]
+    rows = [read_cache_entry(entry[s], s, settings) for s in sorted(samples)]
+    unusable = [str(entry[s]) for s, row in zip(sorted(samples), rows, strict=True) if row is None]
+    if unusable:
+        raise ComputationError(f"foam sweep: cache entries changed or vanished while the sweep ran: {unusable}")
+    return rows
 
 
 def aggregate(rows: Sequence[dict]) -> list[dict]:
