@@ -69,7 +69,7 @@ import numpy as np
 from scipy.optimize import linprog
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import Voronoi, cKDTree
+from scipy.spatial import QhullError, Voronoi, cKDTree
 from scipy.stats import qmc
 
 from foambase.errors import ComputationError
@@ -184,6 +184,18 @@ def _ordered_polygon(points: np.ndarray, normal: np.ndarray) -> np.ndarray:
     return np.argsort(np.arctan2(rel @ e2, rel @ e1))
 
 
+def _too_flat(gamma: float, n: int, box: np.ndarray, stretched_box: np.ndarray) -> FoamParameterError:
+    """The error for cells so flat that the periodic Voronoi diagram of the stretched seeds cannot be built."""
+    # flat cells: stretched by 1/gamma, a cell wider than the y–z period touches its own images
+    width = (np.prod(stretched_box) / n) ** (1.0 / 3.0) / min(stretched_box[1:])
+    cells = math.ceil(1.0 / gamma) if gamma > 1e-9 else f"{1.0 / gamma:.3g}"
+    return FoamParameterError(
+        f"gamma={gamma} is too flat for n_cells={n} in the box {tuple(box.tolist())}: in the stretched metric "
+        f"the mean cell width is {width:.3g} × the box's y–z period, and the periodic Voronoi diagram of these "
+        f"seeds does not close within a 7³ tiling of images; use n_cells ≥ about 1/gamma = "
+        f"{cells} in the unit cube (seed-dependent near that bound), or box='equiaxed'")
+
+
 def _periodic_voronoi(seeds: np.ndarray, gamma: float, box: np.ndarray):
     """Voronoi diagram of periodic seeds under the γ-metric: canonical vertices, edges and windows.
 
@@ -200,7 +212,10 @@ def _periodic_voronoi(seeds: np.ndarray, gamma: float, box: np.ndarray):
     for m in (1, 2, 3):
         shifts = _lattice(m)
         points = (stretched[None] + shifts[:, None] * stretched_box).reshape(-1, 3)
-        vor = Voronoi(points)
+        try:
+            vor = Voronoi(points)
+        except QhullError as exc:  # e.g. gamma = 1e-300: the stretched seeds are degenerate in double precision
+            raise _too_flat(gamma, n, box, stretched_box) from exc
         # ridges (faces) of the central cells, each once modulo the lattice
         rp = vor.ridge_points
         tile, cell = np.divmod(rp, n)
@@ -222,13 +237,7 @@ def _periodic_voronoi(seeds: np.ndarray, gamma: float, box: np.ndarray):
                 break
         log.debug("periodic Voronoi: a %d³ tiling is not enough, enlarging", 2 * m + 1)
     else:
-        # flat cells: stretched by 1/gamma, a cell wider than the y–z period touches its own images
-        width = (np.prod(stretched_box) / n) ** (1.0 / 3.0) / min(stretched_box[1:])
-        raise FoamParameterError(
-            f"gamma={gamma} is too flat for n_cells={n} in the box {tuple(box.tolist())}: in the stretched metric "
-            f"the mean cell width is {width:.2f} × the box's y–z period, and the periodic Voronoi diagram of these "
-            f"seeds does not close within a 7³ tiling of images; use n_cells ≥ about 1/gamma = "
-            f"{math.ceil(1.0 / gamma)} in the unit cube (seed-dependent near that bound), or box='equiaxed'")
+        raise _too_flat(gamma, n, box, stretched_box)
 
     # merge numerically coincident vertices modulo the lattice
     wrapped = _wrap(vor.vertices[used], stretched_box)

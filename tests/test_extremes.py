@@ -319,6 +319,9 @@ def test_flat_cells_gamma_005_builds_gamma_002_needs_more_cells():
     assert foam.measured_density == pytest.approx(0.18, abs=3 * foam.density_stderr + 1e-3)
     with pytest.raises(FoamParameterError, match=r"gamma=0.02 is too flat for n_cells=20 in the box .* 1/gamma = 50"):
         VoronoiFoam(n_cells=20, density=0.18, gamma=0.02, seed=1)
+    # so flat that the stretched seeds are degenerate in double precision (Qhull refuses them): the same error
+    with pytest.raises(FoamParameterError, match=r"gamma=1e-300 is too flat .* 1/gamma = 1e\+300 "):
+        VoronoiFoam(n_cells=8, density=0.18, gamma=1e-300, seed=0)
     flat = VoronoiFoam(n_cells=40, density=0.18, gamma=0.02, seed=1)
     assert flat.summary.mean_abs_cos[0] < foam.summary.mean_abs_cos[0]
 
