@@ -67,6 +67,22 @@ def test_extreme_moduli_give_the_normalised_constants(image_file, tmp_path, E_so
     assert e["E1"] / float(E_solid) == pytest.approx(e1["E1"], rel=1e-12) and e["nu12"] == pytest.approx(e1["nu12"])
 
 
+def test_solid_image_gives_the_solids_closed_form_stiffness(tmp_path):
+    """An all-solid image: C is the isotropic stiffness of --E-solid, --nu-solid (λ = Eν/((1+ν)(1−2ν)),
+    μ = E/(2(1+ν)), written out here), and the isotropic fit is exact."""
+    np.save(tmp_path / "solid.npy", np.ones((6, 6, 6), dtype=bool))
+    out = tmp_path / "solid.json"
+    assert main(["--image", str(tmp_path / "solid.npy"), "--E-solid", "3", "--nu-solid", "0.2", "--threads", "1",
+                 "--out", str(out)]) == 0
+    E, nu = 3.0, 0.2
+    lam, mu = E * nu / ((1 + nu) * (1 - 2 * nu)), E / (2 * (1 + nu))
+    exact = np.diag([2 * mu] * 3 + [mu] * 3) + np.pad(np.full((3, 3), lam), ((0, 3), (0, 3)))
+    data = json.loads(out.read_text())
+    np.testing.assert_allclose(np.array(data["C"]), exact, rtol=1e-13, atol=1e-13 * E)
+    assert data["isotropic_fit"]["E"] == pytest.approx(E, rel=1e-13)
+    assert data["isotropic_fit"]["nu"] == pytest.approx(nu, rel=1e-13)
+
+
 def run_error(argv, capsys):
     """Exit status 2: argparse's usage errors exit, the command's checks return it."""
     try:
@@ -127,7 +143,8 @@ def test_console_script(image_file, tmp_path):
 
 
 def test_foam_path(tmp_path):
-    foam_module = pytest.importorskip("meshes.foam")
+    from meshes import foam as foam_module
+
     out = tmp_path / "foam.json"
     args = dict(density=0.3, gamma=0.5, cells=4, seed=2, resolution=16)
     assert main([f"--{k}={v}" for k, v in args.items()] + ["--out", str(out)]) == 0

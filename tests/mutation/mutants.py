@@ -1,0 +1,184 @@
+"""The curated deliberate bugs of ``make mutate`` (see ``mutate.py``): each an exact substitution in one file.
+
+Every entry names the tests that should catch it (``targets``, run serially; ``mpi_targets``, run under
+``mpirun -n 2`` when the bug only shows with several ranks). ``tests/test_mutation.py`` checks on every
+``make test`` that each pattern still occurs exactly once (so a refactoring that moves the code makes that test
+fail instead of leaving a mutation that silently tests nothing): when you move such code, update its entry here.
+"""
+
+from mutate import Mutation
+
+MUTATIONS: tuple[Mutation, ...] = (
+    # ---- the data pipeline: foam → voxels → FFT → table → materials -------------------------------------------
+    Mutation(
+        "table-ti-axis-z", "homogenization/tables.py",
+        "ti = closest_transverse_isotropic(r.C, axis=(1.0, 0.0, 0.0))",
+        "ti = closest_transverse_isotropic(r.C, axis=(0.0, 0.0, 1.0))",
+        "the table's TI fit taken about z instead of the foam's distinct axis x",
+        targets=("tests/test_tables.py",)),
+    Mutation(
+        "paper-fit-nu-tl", "fenicsfoam/materials.py",
+        'nu_tl=(q("nu21") + q("nu31")) / 2',
+        'nu_tl=(q("nu12") + q("nu13")) / 2',
+        '`fit="paper"`: ν_tl from ν12, ν13 instead of ν21, ν31',
+        targets=("tests/test_tables.py",)),
+    Mutation(
+        "table-mean-first-seed", "homogenization/tables.py",
+        "out[name] = float(values.mean())",
+        "out[name] = float(values[0])",
+        "the aggregated table takes the first seed instead of the mean over seeds",
+        targets=("tests/test_tables.py",)),
+    Mutation(
+        "fft-stop-10-tol", "homogenization/fft.py",
+        '        if history[-1] <= tol:\n            return mean, history, True, ""\n        beta = rr_new / rr',
+        '        if history[-1] <= 10 * tol:\n            return mean, history, True, ""\n        beta = rr_new / rr',
+        "CG stops at 10 × tol",
+        targets=("tests/test_fft.py",)),
+    Mutation(
+        "fft-macro-strain-shear", "homogenization/fft.py",
+        "E = E_voigt / _MANDEL",
+        "E = E_voigt * _MANDEL",
+        "FFT macro strain: engineering shear multiplied instead of divided by √2 (a dropped ½ in ε_ij)",
+        targets=("tests/test_fft.py",)),
+    Mutation(
+        "fft-rotated-wave-vector", "homogenization/fft.py",
+        "comps = [2 * N[0] * s[0] * c[1] * c[2], ",
+        "comps = [2 * N[0] * s[0] * c[1], ",
+        "Willot's rotated wave vector missing a cosine factor in k_1",
+        targets=("tests/test_fft.py",)),
+    Mutation(
+        "voxel-centres", "meshes/foam.py",
+        "c = (np.arange(N) + 0.5) / N\n    return np.stack(np.meshgrid(c[i0:i1], c, c",
+        "c = np.arange(N) / (N - 1)\n    return np.stack(np.meshgrid(c[i0:i1], c, c",
+        "voxel centres at i/(N−1) instead of (i+½)/N",
+        targets=("tests/test_foam.py",)),
+    Mutation(
+        "foam-radius-quantile", "meshes/foam.py",
+        "rank = max(math.ceil(density * len(sample)) - 1, 0)",
+        "rank = max(math.ceil(0.95 * density * len(sample)) - 1, 0)",
+        "strut radius found for 95 % of the requested density",
+        targets=("tests/test_foam.py",)),
+    Mutation(
+        "voxel-mesh-axes", "meshes/voxel.py",
+        "solid = image[index[:, 0], index[:, 1], index[:, 2]].astype(bool)",
+        "solid = image[index[:, 2], index[:, 1], index[:, 0]].astype(bool)",
+        "voxel mesh reads the image with x and z swapped",
+        targets=("tests/test_fem_fft_crosscheck.py",)),
+    # ---- tensors, materials ----------------------------------------------------------------------------------
+    Mutation(
+        "ti-compliance-s66", "homogenization/tensors.py",
+        "S[5, 5] = 2.0 * (1.0 + nu_t) / E_t",
+        "S[5, 5] = (1.0 + nu_t) / E_t",
+        "TI compliance S66 = 1/(2 G12): a wrong Voigt shear factor",
+        targets=("tests/test_tensors.py",)),
+    Mutation(
+        "spencer-beta", "fenicsfoam/materials.py",
+        '"beta": C[0, 0] + C[2, 2] - 2.0 * C[0, 2] - 4.0 * C[3, 3],',
+        '"beta": C[0, 0] + C[2, 2] - 2.0 * C[0, 2] - 2.0 * C[3, 3],',
+        "Spencer modulus β with 2 C44 instead of 4 C44",
+        targets=("tests/test_materials.py",)),
+    # ---- constitutive models, solver, stability --------------------------------------------------------------
+    Mutation(
+        "spencer-energy-sign", "fenicsfoam/constitutive.py",
+        '+ m["alpha"] * tr_Ae * ufl.tr(e)',
+        '- m["alpha"] * tr_Ae * ufl.tr(e)',
+        "sign of the α term of the TI Spencer energy",
+        targets=("tests/test_constitutive.py",)),
+    Mutation(
+        "green-lagrange-half", "fenicsfoam/constitutive.py",
+        "return 0.5 * (F.T * F - ufl.Identity(F.ufl_shape[0]))",
+        "return (F.T * F - ufl.Identity(F.ufl_shape[0]))",
+        "Green–Lagrange strain without its ½",
+        targets=("tests/test_constitutive.py", "tests/test_solver.py")),
+    Mutation(
+        "corotational-r-transposed", "fenicsfoam/constitutive.py",
+        "return ufl.sym(rotation.R.T * deformation_gradient(u)) - ufl.Identity(len(u))",
+        "return ufl.sym(rotation.R * deformation_gradient(u)) - ufl.Identity(len(u))",
+        "corotational strain sym(R F) instead of sym(Rᵀ F)",
+        targets=("tests/test_constitutive.py", "tests/test_solver.py")),
+    Mutation(
+        "polar-rotation-transposed", "fenicsfoam/constitutive.py",
+        "            break\n    return R\n",
+        "            break\n    return R.transpose(0, 2, 1)\n",
+        "polar decomposition returns Rᵀ",
+        targets=("tests/test_constitutive.py", "tests/test_solver.py")),
+    Mutation(
+        "rotation-tangent-factor", "fenicsfoam/constitutive.py",
+        "omega = 2.0 * ufl.inv(ufl.tr(U) * ufl.Identity(3) - U)",
+        "omega = ufl.inv(ufl.tr(U) * ufl.Identity(3) - U)",
+        "corotational tangent: the spin ω without its factor 2 (inconsistent Jacobian)",
+        targets=("tests/test_solver.py",)),
+    Mutation(
+        "gravity-factor", "fenicsfoam/solver.py",
+        "- material.rho * ufl.inner(self._body_acceleration, v) * ufl.dx)",
+        "- 0.5 * material.rho * ufl.inner(self._body_acceleration, v) * ufl.dx)",
+        "body force ½ ρ g instead of ρ g",
+        targets=("tests/test_solver.py",)),
+    Mutation(
+        "rodrigues-transposed", "fenicsfoam/bcs.py",
+        "return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)",
+        "return np.eye(3) - np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)",
+        "prescribed rotations turn the wrong way (Rᵀ)",
+        targets=("tests/test_solver.py",)),
+    Mutation(
+        "acoustic-tensor-indices", "fenicsfoam/stability.py",
+        "A = A.transpose(0, 1, 3, 2, 4).reshape(p, 9, 9)",
+        "A = A.transpose(0, 1, 2, 3, 4).reshape(p, 9, 9)",
+        "acoustic tensor A_ijkl n_k n_l instead of A_ijkl n_j n_l",
+        targets=("tests/test_stability.py",)),
+    Mutation(
+        "validity-half", "fenicsfoam/validity.py",
+        "quadratic = 0.5 * grad.T * grad",
+        "quadratic = grad.T * grad",
+        "small-strain validity measure without the ½ of ½ ∇uᵀ∇u",
+        targets=("tests/test_extremes.py",)),
+    # ---- orientation, probes, scenes, meshes -------------------------------------------------------------------
+    Mutation(
+        "spiral-handedness", "fenicsfoam/orientation.py",
+        "d = math.sin(p) * e_r + h * math.cos(p) * e_theta",
+        "d = math.sin(p) * e_r - h * math.cos(p) * e_theta",
+        "spiral fibres of the opposite handedness",
+        targets=("tests/test_scene.py",)),
+    Mutation(
+        "probe-twist-sign", "fenicsfoam/probes.py",
+        "s, c = R[1, 0] - R[0, 1], R[0, 0] + R[1, 1]",
+        "s, c = R[0, 1] - R[1, 0], R[0, 0] + R[1, 1]",
+        "centre rotation probe with the wrong sign",
+        targets=("tests/test_probes.py",)),
+    Mutation(
+        "probe-missing-allreduce", "fenicsfoam/probes.py",
+        "return self._comm.allreduce(dolfinx.fem.assemble_scalar(form), op=MPI.SUM)",
+        "return dolfinx.fem.assemble_scalar(form)",
+        "probe integrals not summed over ranks",
+        mpi_targets=("tests/test_probes.py",)),
+    Mutation(
+        "fem-missing-allreduce", "homogenization/fem.py",
+        "comm.Allreduce(local, total, op=MPI.SUM)\n        sigma = total.reshape(3, 3) / box_volume",
+        "total[:] = local\n        sigma = total.reshape(3, 3) / box_volume",
+        "FEM RVE mean stress not summed over ranks",
+        mpi_targets=("tests/test_fem_rve.py",)),
+    Mutation(
+        "fem-periodic-offset", "homogenization/fem.py",
+        "out[:3] = np.where(upper, lo, x[:3])",
+        "out[:3] = np.where(upper, 2 * lo - hi, x[:3])",
+        "periodic constraint maps upper-face dofs one period too far",
+        targets=("tests/test_fem_rve.py",)),
+    Mutation(
+        "fem-unit-shear-strain", "homogenization/fem.py",
+        "    E[i, j] += 0.5\n    E[j, i] += 0.5\n",
+        "    E[i, j] += 1.0\n    E[j, i] += 1.0\n",
+        "FEM RVE unit shear strains ε_ij = 1 instead of ½ (γ_ij = 2): a wrong Voigt shear factor",
+        targets=("tests/test_fem_rve.py",)),
+    Mutation(
+        "scene-servo-degrees", "fenicsfoam/scene/build.py",
+        '{f"servo{i}": math.radians(angle) for i, angle in enumerate(s.servo_deg)}',
+        '{f"servo{i}": math.radians(angle) / 2 for i, angle in enumerate(s.servo_deg)}',
+        "scene servo angles halved in the conversion to radians",
+        targets=("tests/test_scene.py",)),
+    Mutation(
+        "tripod-servo-axis", "meshes/tripod.py",
+        "axis=np.array([-e[1], e[0], 0.0]))",
+        "axis=np.array([e[1], -e[0], 0.0]))",
+        "servo axes reversed: positive horn angles lower the arm ends",
+        targets=("tests/test_tripod_mesh.py",)),
+)
