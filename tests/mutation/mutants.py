@@ -15,25 +15,26 @@ MUTATIONS: tuple[Mutation, ...] = (
         "ti = closest_transverse_isotropic(r.C, axis=(1.0, 0.0, 0.0))",
         "ti = closest_transverse_isotropic(r.C, axis=(0.0, 0.0, 1.0))",
         "the table's TI fit taken about z instead of the foam's distinct axis x",
-        targets=("tests/test_tables.py",)),
+        targets=("tests/test_tables.py::test_sample_row_fits_ti_about_the_foams_x_axis",)),
     Mutation(
         "paper-fit-nu-tl", "fenicsfoam/materials.py",
         'nu_tl=(q("nu21") + q("nu31")) / 2',
         'nu_tl=(q("nu12") + q("nu13")) / 2',
         '`fit="paper"`: ν_tl from ν12, ν13 instead of ν21, ν31',
-        targets=("tests/test_tables.py",)),
+        targets=("tests/test_tables.py::test_paper_fit_of_an_exactly_ti_table_returns_its_constants",
+                 "tests/test_tables.py::test_paper_fit_of_the_shipped_table_averages_its_engineering_columns")),
     Mutation(
         "table-mean-first-seed", "homogenization/tables.py",
         "out[name] = float(values.mean())",
         "out[name] = float(values[0])",
         "the aggregated table takes the first seed instead of the mean over seeds",
-        targets=("tests/test_tables.py",)),
+        targets=("tests/test_tables.py::test_aggregate_is_the_mean_and_sample_std_over_seeds",)),
     Mutation(
         "fft-stop-10-tol", "homogenization/fft.py",
         '        if history[-1] <= tol:\n            return mean, history, True, ""\n        beta = rr_new / rr',
         '        if history[-1] <= 10 * tol:\n            return mean, history, True, ""\n        beta = rr_new / rr',
         "CG stops at 10 × tol",
-        targets=("tests/test_fft.py",)),
+        targets=("tests/test_fft.py::test_equilibrium_residual_of_the_returned_fields_is_below_tol",)),
     Mutation(
         "fft-macro-strain-shear", "homogenization/fft.py",
         "E = E_voigt / _MANDEL",
@@ -51,7 +52,8 @@ MUTATIONS: tuple[Mutation, ...] = (
         "c = (np.arange(N) + 0.5) / N\n    return np.stack(np.meshgrid(c[i0:i1], c, c",
         "c = np.arange(N) / (N - 1)\n    return np.stack(np.meshgrid(c[i0:i1], c, c",
         "voxel centres at i/(N−1) instead of (i+½)/N",
-        targets=("tests/test_foam.py",)),
+        targets=("tests/test_foam.py::test_voxelize_is_the_distance_test_at_the_documented_voxel_centres",
+                 "tests/test_foam.py::test_seeds_shifted_by_whole_voxels_roll_the_image")),
     Mutation(
         "foam-radius-quantile", "meshes/foam.py",
         "rank = max(math.ceil(density * len(sample)) - 1, 0)",
@@ -63,7 +65,7 @@ MUTATIONS: tuple[Mutation, ...] = (
         "solid = image[index[:, 0], index[:, 1], index[:, 2]].astype(bool)",
         "solid = image[index[:, 2], index[:, 1], index[:, 0]].astype(bool)",
         "voxel mesh reads the image with x and z swapped",
-        targets=("tests/test_fem_fft_crosscheck.py",)),
+        targets=("tests/test_fem_fft_crosscheck.py::test_voxel_mesh_cells_are_tagged_by_the_documented_voxel_boxes",)),
     # ---- tensors, materials ----------------------------------------------------------------------------------
     Mutation(
         "ti-compliance-s66", "homogenization/tensors.py",
@@ -95,6 +97,18 @@ MUTATIONS: tuple[Mutation, ...] = (
         "return ufl.sym(rotation.R.T * deformation_gradient(u)) - ufl.Identity(len(u))",
         "return ufl.sym(rotation.R * deformation_gradient(u)) - ufl.Identity(len(u))",
         "corotational strain sym(R F) instead of sym(Rᵀ F)",
+        targets=("tests/test_constitutive.py", "tests/test_solver.py")),
+    Mutation(
+        "svk-piola-order", "fenicsfoam/constitutive.py",
+        "return deformation_gradient(u) * stress(self.strain(u), material, orientation)",
+        "return stress(self.strain(u), material, orientation) * deformation_gradient(u)",
+        "SVK first Piola–Kirchhoff stress S F instead of F S",
+        targets=("tests/test_constitutive.py", "tests/test_solver.py")),
+    Mutation(
+        "corotational-piola-order", "fenicsfoam/constitutive.py",
+        "return rotation.R * stress(strain, material, orientation)",
+        "return stress(strain, material, orientation) * rotation.R",
+        "corotational stress σ R instead of R σ",
         targets=("tests/test_constitutive.py", "tests/test_solver.py")),
     Mutation(
         "polar-rotation-transposed", "fenicsfoam/constitutive.py",

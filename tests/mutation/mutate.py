@@ -43,6 +43,8 @@ ROOT = Path(__file__).resolve().parents[2]
 #: 4 usage error, 5 no tests collected.
 _CAUGHT_CODES = {1, 2}
 DEFAULT_TIMEOUT_S = 1800.0
+#: The harness's own test (never run on a mutated copy).
+SELF_TEST = "tests/test_mutation.py"
 
 
 class MutationError(Exception):
@@ -102,9 +104,16 @@ class Outcome:
 
 
 def repository_files(root: Path = ROOT) -> list[str]:
-    """Tracked and untracked-but-not-ignored files of the working tree (paths relative to ``root``)."""
-    out = subprocess.run(["git", "ls-files", "--cached", "--others", "--exclude-standard", "-z"], cwd=root,
-                         capture_output=True, check=True).stdout
+    """The working tree's files (paths relative to ``root``): tracked and untracked-but-not-ignored ones in a git
+    checkout; elsewhere (e.g. in a copy made by this harness) every file outside hidden folders, ``out`` and
+    caches."""
+    try:
+        out = subprocess.run(["git", "ls-files", "--cached", "--others", "--exclude-standard", "-z"], cwd=root,
+                             capture_output=True, check=True).stdout
+    except (OSError, subprocess.CalledProcessError):
+        skip = {"out", "__pycache__"}
+        return sorted(str(p.relative_to(root)) for p in root.rglob("*") if p.is_file() and not any(
+            part.startswith(".") or part in skip or part.endswith(".egg-info") for part in p.relative_to(root).parts))
     return sorted(p for p in out.decode().split("\0") if p and (root / p).is_file())
 
 
@@ -157,7 +166,8 @@ def _first_failure(output: str) -> str:
 def pytest_commands(mutation: Mutation, full: bool, python: str = sys.executable, nproc: int = 2
                     ) -> list[list[str]]:
     """The serial and (if any) the MPI pytest command lines for ``mutation``, in the order they are run."""
-    base = ["-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", "-rfE"]
+    # the harness's own test applies mutations to the unmutated code: it cannot run on a mutated copy
+    base = ["-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", "-rfE", f"--ignore={SELF_TEST}"]
     serial = [python, *base, *(mutation.targets if not full else ())]
     commands = [serial] if (mutation.targets or full) else []
     if mutation.mpi_targets or full:
