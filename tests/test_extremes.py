@@ -371,9 +371,17 @@ def test_soft_beam_corotational_converges_svk_fails_clearly_linear_invalid(coars
 @pytest.mark.slow
 def test_root_turned_135deg_tip_beyond_90deg_nonlinear_models_converge(coarse_beam):
     """Tip rotation > 90°: the Fig. 6 beam under gravity with its clamped root then turned by 135° about y
-    (8 increments). corotational and svk converge with the tip rotated by more than 90° and no inverted
-    element; the same load with the linear model is reported invalid (a rigid rotation is spurious strain)."""
+    (8 increments). corotational and svk converge with no inverted element, and the tip section's rotation and
+    the sag agree with the inextensible elastica clamped at −135° (tests/_elastica.py: 126.35°, 195.5 mm; the
+    strains stay below 2 %, so the 3D models and the rod differ by O((h/L)²) and the P2 discretization, measured
+    0.04° and 0.01 %). The same load with the linear model is reported invalid (a rigid rotation is spurious
+    strain)."""
+    from _elastica import cantilever_elastica
+
     material = Isotropic(E=E_FIG6, nu=0.3, rho=RHO)
+    elastica = cantilever_elastica(RHO * G * SIDE**2, E_FIG6 * SIDE**4 / 12, LENGTH, math.radians(-135.0))
+    expected_rotation = -math.degrees(elastica.theta)          # rotation about +y turns the tangent to −z
+    assert 120.0 < expected_rotation < 130.0
     steps = [LoadStep("gravity", gravity=1.0), LoadStep("turn", angles={"clamp": math.radians(135.0)}, increments=8)]
     rotations = {}
     for model in ("corotational", "svk", "linear"):
@@ -384,5 +392,5 @@ def test_root_turned_135deg_tip_beyond_90deg_nonlinear_models_converge(coarse_be
             assert not small_strain_validity(problem.u).valid
         else:
             assert problem.min_det_F() > 0
-            assert 90.0 < rotations[model] < 135.0, rotations
-    assert rotations["svk"] == pytest.approx(rotations["corotational"], abs=2.0), rotations
+            assert rotations[model] == pytest.approx(expected_rotation, abs=0.5), rotations
+            assert sag(problem, coarse_beam) == pytest.approx(-elastica.z, rel=0.01)
