@@ -30,6 +30,7 @@ import argparse
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -43,6 +44,8 @@ ROOT = Path(__file__).resolve().parents[2]
 #: 4 usage error, 5 no tests collected.
 _CAUGHT_CODES = {1, 2}
 DEFAULT_TIMEOUT_S = 1800.0
+#: Seconds without new output, after a test has failed, before a run is taken to hang (see ``_run``).
+STALL_S = 120.0
 #: The harness's own test (never run on a mutated copy).
 SELF_TEST = "tests/test_mutation.py"
 
@@ -155,26 +158,67 @@ def _environment(copy: Path) -> dict[str, str]:
 
 
 def _first_failure(output: str) -> str:
-    """The first ``FAILED``/``ERROR`` line of pytest's short summary (without the message), else ''."""
-    for line in output.splitlines():
-        match = re.match(r"^(FAILED|ERROR) (\S+)", line)
-        if match:
-            return match.group(2)
-    return ""
+    """The first failed test: from pytest's short summary (``FAILED id``) or, without one (a run killed after a
+    failure), from the verbose progress (``id FAILED``); else ''."""
+    summary = re.search(r"^(?:FAILED|ERROR) (\S+)", output, re.MULTILINE)
+    if summary:
+        return summary.group(1)
+    match = _FAILED.search(output)
+    return (match.group(1) or match.group(2)) if match else ""
 
 
 def pytest_commands(mutation: Mutation, full: bool, python: str = sys.executable, nproc: int = 2
                     ) -> list[list[str]]:
     """The serial and (if any) the MPI pytest command lines for ``mutation``, in the order they are run."""
     # the harness's own test applies mutations to the unmutated code: it cannot run on a mutated copy
-    base = ["-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", "-rfE", f"--ignore={SELF_TEST}"]
-    serial = [python, *base, *(mutation.targets if not full else ())]
+    base = ["-m", "pytest", "-p", "no:cacheprovider", "-rfE", "--color=no", f"--ignore={SELF_TEST}"]
+    # serially, stop at the first failure; under MPI never (-x): a rank that stops while the others go on to the
+    # next test's collectives would leave them waiting forever. -v names each test with its outcome.
+    serial = [python, *base, "-q", "-x", *(mutation.targets if not full else ())]
     commands = [serial] if (mutation.targets or full) else []
     if mutation.mpi_targets or full:
-        mpi = ["mpirun", "-n", str(nproc), python, "-m", "mpi4py", *base, "-m", "mpi and not slow" if full else "mpi",
-               *(mutation.mpi_targets if not full else ())]
+        mpi = ["mpirun", "-n", str(nproc), python, "-m", "mpi4py", *base, "-v",
+               "-m", "mpi and not slow" if full else "mpi", *(mutation.mpi_targets if not full else ())]
         commands.append(mpi)
     return commands
+
+
+#: Exit "code" of a run killed because it stalled after a test had failed (see :func:`_run`).
+STALLED_AFTER_FAILURE = -1
+_FAILED = re.compile(r"(?:^|\s)(\S+::\S+) (?:FAILED|ERROR)\b|^(?:FAILED|ERROR) (\S+)", re.MULTILINE)
+
+
+def _run(command: list[str], cwd: Path, env: dict[str, str], timeout: float, stall: float = STALL_S
+         ) -> tuple[int | None, str]:
+    """Run ``command`` in its own process group; return ``(exit code, output)``.
+
+    The whole group (mpirun and its ranks) is killed after ``timeout`` seconds (exit code ``None``), or once a
+    test has failed and the output has not changed for ``stall`` seconds (:data:`STALLED_AFTER_FAILURE`): under
+    MPI a test that fails on one rank only (e.g. a value not summed over ranks) lets that rank skip a collective
+    the other one then waits in forever; the failure is what the run was for.
+    """
+    with tempfile.NamedTemporaryFile("w+") as out:
+        proc = subprocess.Popen(command, cwd=cwd, env=env, stdout=out, stderr=subprocess.STDOUT, text=True,
+                                start_new_session=True)
+        start = last_change = time.monotonic()
+        size, code = -1, None
+        while True:
+            try:
+                code = proc.wait(timeout=2.0)
+                break
+            except subprocess.TimeoutExpired:
+                pass
+            now = time.monotonic()
+            current = os.path.getsize(out.name)
+            if current != size:
+                size, last_change = current, now
+            stalled = now - last_change > stall and _FAILED.search(Path(out.name).read_text(errors="replace"))
+            if now - start > timeout or stalled:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+                code = STALLED_AFTER_FAILURE if stalled else None
+                break
+        return code, Path(out.name).read_text(errors="replace")
 
 
 def run_in_copy(mutation: Mutation, *, full: bool = False, root: Path = ROOT, timeout: float = DEFAULT_TIMEOUT_S,
@@ -190,21 +234,21 @@ def run_in_copy(mutation: Mutation, *, full: bool = False, root: Path = ROOT, ti
         env = _environment(copy)
         for command in pytest_commands(mutation, full):
             outcome.runs.append(" ".join(command))
-            try:
-                proc = subprocess.run(command, cwd=copy, env=env, capture_output=True, text=True, timeout=timeout)
-            except subprocess.TimeoutExpired:
+            code, output = _run(command, copy, env, timeout)
+            outcome.output = output[-4000:]
+            if code is None:
                 outcome.status, outcome.caught_by = "timeout", f"no result within {timeout:g} s"
                 break
-            output = proc.stdout + proc.stderr
-            outcome.output = output[-4000:]
-            if proc.returncode in _CAUGHT_CODES:
+            if code in _CAUGHT_CODES or code == STALLED_AFTER_FAILURE:
                 outcome.status = "caught"
                 where = _first_failure(output) or "(collection or import error)"
                 outcome.caught_by = where + (" [mpirun -n 2]" if command[0] == "mpirun" else "")
+                if code == STALLED_AFTER_FAILURE:
+                    outcome.caught_by += ", then the ranks desynchronised (killed)"
                 break
-            if proc.returncode != 0:
+            if code != 0:
                 outcome.status = "error"
-                outcome.caught_by = f"pytest exit code {proc.returncode} ({' '.join(command[-3:])})"
+                outcome.caught_by = f"pytest exit code {code} ({' '.join(command[-3:])})"
                 break
     finally:
         outcome.seconds = time.perf_counter() - start
