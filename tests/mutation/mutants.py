@@ -79,6 +79,19 @@ MUTATIONS: tuple[Mutation, ...] = (
         '"beta": C[0, 0] + C[2, 2] - 2.0 * C[0, 2] - 2.0 * C[3, 3],',
         "Spencer modulus β with 2 C44 instead of 4 C44",
         targets=("tests/test_materials.py",)),
+    # ---- calibration, uncertainty ----------------------------------------------------------------------------
+    Mutation(
+        "calibrate-affine-intercept", "fenicsfoam/calibrate.py",
+        "a = p0 - b / E0",
+        "a = p0 - b / E1",
+        "calibration's affine model p = a + b/E with its intercept taken at the wrong modulus",
+        targets=("tests/test_calibrate.py::test_recovers_a_known_E_solid_on_the_beam",)),
+    Mutation(
+        "uncertainty-population-std", "fenicsfoam/uncertainty.py",
+        "std = rows.std(axis=0, ddof=1) if len(rows) > 1",
+        "std = rows.std(axis=0, ddof=0) if len(rows) > 1",
+        "probes' σ over the seeds as the population standard deviation (ddof 0) instead of the sample one",
+        targets=("tests/test_uncertainty.py::test_std_equals_the_closed_form_and_grows_with_the_scatter",)),
     # ---- constitutive models, solver, stability --------------------------------------------------------------
     Mutation(
         "spencer-energy-sign", "fenicsfoam/constitutive.py",
@@ -189,6 +202,18 @@ MUTATIONS: tuple[Mutation, ...] = (
         '{f"servo{i}": math.radians(angle) / 2 for i, angle in enumerate(s.servo_deg)}',
         "scene servo angles halved in the conversion to radians",
         targets=("tests/test_scene.py",)),
+    Mutation(
+        "rve-periodic-rank", "meshes/rve.py",
+        "    wrapped = ijk % n\n",
+        "    wrapped = ijk\n",
+        "RVE nodes on opposite faces not identified as periodic images (ranks without the modulo)",
+        targets=("tests/test_foam_rve.py",)),
+    Mutation(
+        "beam-box-offset", "meshes/beam.py",
+        "box = occ.addBox(0.0, -width / 2, -height / 2, length, width, height)",
+        "box = occ.addBox(0.0, -width / 2, -height, length, width, height)",
+        "beam box not centred in z (its top face at z = 0)",
+        targets=("tests/test_beam_mesh.py::test_bounding_box_and_sizes",)),
     Mutation(
         "tripod-servo-axis", "meshes/tripod.py",
         "axis=np.array([-e[1], e[0], 0.0]))",
