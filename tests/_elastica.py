@@ -25,19 +25,25 @@ class ElasticaTip:
     theta: float   #: tip tangent angle (rad, counter-clockwise from +x towards +z)
 
 
-def cantilever_elastica(q: float, EI: float, L: float, theta0: float = 0.0, nodes: int = 2001) -> ElasticaTip:
-    """Tip of the elastica of a cantilever of length ``L`` clamped at angle ``theta0`` under ``q`` (N/m) along −z."""
+def cantilever_elastica(q: float, EI: float, L: float, theta0: float = 0.0, nodes: int = 2001,
+                        continuation: int = 1) -> ElasticaTip:
+    """Tip of the elastica of a cantilever of length ``L`` clamped at angle ``theta0`` under ``q`` (N/m) along −z.
+
+    ``continuation`` > 1 ramps the load geometrically from ``q``/100 in that many solves, each started from the
+    previous solution (large loads, where the straight beam is too far from the solution for one solve)."""
     s = np.linspace(0.0, L, nodes)
+    y = np.vstack([np.full_like(s, theta0), np.zeros_like(s), s * np.cos(theta0), s * np.sin(theta0)])
+    loads = q * np.geomspace(0.01, 1.0, continuation) if continuation > 1 else [q]
+    for load in loads:
+        def rhs(s, y, load=load):  # y = (θ, θ', x, z)
+            return np.vstack([y[1], load * (L - s) * np.cos(y[0]) / EI, np.cos(y[0]), np.sin(y[0])])
 
-    def rhs(s, y):  # y = (θ, θ', x, z)
-        return np.vstack([y[1], q * (L - s) * np.cos(y[0]) / EI, np.cos(y[0]), np.sin(y[0])])
+        def bc(a, b):
+            return np.array([a[0] - theta0, b[1], a[2], a[3]])
 
-    def bc(a, b):
-        return np.array([a[0] - theta0, b[1], a[2], a[3]])
-
-    guess = np.vstack([np.full_like(s, theta0), np.zeros_like(s), s * np.cos(theta0), s * np.sin(theta0)])
-    sol = solve_bvp(rhs, bc, s, guess, tol=1e-10, max_nodes=200000)
-    if not sol.success:
-        raise RuntimeError(f"elastica did not converge: {sol.message}")
+        sol = solve_bvp(rhs, bc, s, y, tol=1e-10, max_nodes=200000)
+        if not sol.success:
+            raise RuntimeError(f"elastica did not converge at load {load:g} N/m: {sol.message}")
+        y = sol.sol(s)
     theta, _, x, z = sol.sol(L)
     return ElasticaTip(float(x), float(z), float(theta))
