@@ -59,3 +59,22 @@ def test_a_known_bug_is_caught_and_a_no_op_survives():
     table = mutate.markdown_table([KNOWN, NO_OP], outcomes)
     assert "| `s66-factor` |" in table and "**caught**" in table and "**survived**" in table
     assert "1 of 2 mutations caught." in table
+
+
+def test_every_failing_test_is_listed_without_stopping_at_the_first():
+    """The KNOWN bug breaks the closed-form compliance test only: one failure of one test, not stopped at it."""
+    (outcome,) = mutate.run_mutations([KNOWN], timeout=600, baseline=False, stop_first=False)
+    assert outcome.caught and not outcome.stopped_at_first
+    assert outcome.failed == [TARGET[0]] and outcome.collected == 1
+    table = mutate.markdown_table([KNOWN], [outcome])
+    assert "| 1 / 1 |" in table
+
+
+def test_pytest_summaries_are_parsed():
+    output = ("tests/a.py::t1 FAILED\n=== short test summary info ===\nFAILED tests/a.py::t1 - assert 1 == 2\n"
+              "ERROR tests/b.py::t2 - RuntimeError\nFAILED tests/a.py::t1 - again\n"
+              "=== 2 failed, 40 passed, 3 skipped, 1 error in 12.5s ===\n")
+    assert mutate._failures(output) == ["tests/a.py::t1", "tests/b.py::t2"]
+    assert mutate._collected(output) == 46
+    assert mutate._collected("killed before the end") is None
+    assert mutate._first_failure("tests/c.py::t3 FAILED [ 50%]\n") == "tests/c.py::t3"

@@ -17,10 +17,14 @@ suite (``pytest`` with the project's default options); if the serial run passes 
 ``timeout``     a run exceeded ``--timeout`` (a hang is not a test failure; reported separately);
 ``error``       the harness could not run the tests (no test collected, pytest usage or internal error).
 
+By default a serial run stops at its first failure (``pytest -x``: the table names that test);
+``--all-failures`` runs the targets to the end and lists every failing test (slower).
+
 Before the mutations, the same targets run on an unmutated copy (``--no-baseline`` skips it): a failing
 baseline means the results would say nothing, and the harness stops.
 
-Run ``make mutate`` (or ``python tests/mutation/mutate.py [--full] [--only NAME ...] [--markdown FILE]``).
+Run ``make mutate`` (or ``python tests/mutation/mutate.py [--full] [--all-failures] [--only NAME ...]
+[--markdown FILE]``).
 Exit status: 0 if every mutation was caught, 1 otherwise, 2 for a bad command line or a failing baseline.
 """
 
@@ -97,6 +101,9 @@ class Outcome:
     name: str
     status: str                       #: caught, survived, timeout, error
     caught_by: str = ""               #: first failing test (or the reason)
+    failed: list[str] = field(default_factory=list)  #: every failing test of the run that caught the bug
+    collected: int | None = None      #: tests that run took part in (failed + passed + skipped ...), if it says
+    stopped_at_first: bool = True     #: the catching run stopped at its first failure (pytest -x)
     seconds: float = 0.0
     runs: list[str] = field(default_factory=list)   #: the commands run
     output: str = ""                  #: the tail of the last run's output
@@ -157,6 +164,20 @@ def _environment(copy: Path) -> dict[str, str]:
     return env
 
 
+def _failures(output: str) -> list[str]:
+    """Every failed test of pytest's short summary (``FAILED id``/``ERROR id`` lines), in order, without repeats."""
+    return list(dict.fromkeys(re.findall(r"^(?:FAILED|ERROR) (\S+)", output, re.MULTILINE)))
+
+
+def _collected(output: str) -> int | None:
+    """The number of tests in pytest's final line (``3 failed, 40 passed, 2 skipped in 9.1s``), else None."""
+    lines = [line for line in output.splitlines() if re.search(r"\b(passed|failed|error|errors)\b.* in [\d.]+s", line)]
+    if not lines:
+        return None
+    counts = re.findall(r"(\d+) (?:failed|passed|skipped|xfailed|xpassed|errors?)\b", lines[-1])
+    return sum(int(c) for c in counts)
+
+
 def _first_failure(output: str) -> str:
     """The first failed test: from pytest's short summary (``FAILED id``) or, without one (a run killed after a
     failure), from the verbose progress (``id FAILED``); else ''."""
@@ -167,14 +188,16 @@ def _first_failure(output: str) -> str:
     return (match.group(1) or match.group(2)) if match else ""
 
 
-def pytest_commands(mutation: Mutation, full: bool, python: str = sys.executable, nproc: int = 2
-                    ) -> list[list[str]]:
-    """The serial and (if any) the MPI pytest command lines for ``mutation``, in the order they are run."""
+def pytest_commands(mutation: Mutation, full: bool, python: str = sys.executable, nproc: int = 2,
+                    stop_first: bool = True) -> list[list[str]]:
+    """The serial and (if any) the MPI pytest command lines for ``mutation``, in the order they are run.
+
+    ``stop_first=False`` runs every serial target to the end (every failing test is then reported)."""
     # the harness's own test applies mutations to the unmutated code: it cannot run on a mutated copy
     base = ["-m", "pytest", "-p", "no:cacheprovider", "-rfE", "--color=no", f"--ignore={SELF_TEST}"]
     # serially, stop at the first failure; under MPI never (-x): a rank that stops while the others go on to the
     # next test's collectives would leave them waiting forever. -v names each test with its outcome.
-    serial = [python, *base, "-q", "-x", *(mutation.targets if not full else ())]
+    serial = [python, *base, "-q", *(("-x",) if stop_first else ()), *(mutation.targets if not full else ())]
     commands = [serial] if (mutation.targets or full) else []
     if mutation.mpi_targets or full:
         mpi = ["mpirun", "-n", str(nproc), python, "-m", "mpi4py", *base, "-v",
@@ -222,8 +245,10 @@ def _run(command: list[str], cwd: Path, env: dict[str, str], timeout: float, sta
 
 
 def run_in_copy(mutation: Mutation, *, full: bool = False, root: Path = ROOT, timeout: float = DEFAULT_TIMEOUT_S,
-                files: Sequence[str] | None = None, keep: bool = False, apply: bool = True) -> Outcome:
-    """Apply ``mutation`` (unless ``apply`` is False: the baseline) to a fresh copy and run its tests there."""
+                files: Sequence[str] | None = None, keep: bool = False, apply: bool = True,
+                stop_first: bool = True) -> Outcome:
+    """Apply ``mutation`` (unless ``apply`` is False: the baseline) to a fresh copy and run its tests there
+    (``stop_first=False``: every serial target to the end, so that every failing test is recorded)."""
     start = time.perf_counter()
     tmp = Path(tempfile.mkdtemp(prefix=f"fenicsfoam-mutant-{mutation.name}-"))
     outcome = Outcome(mutation.name, "survived")
@@ -232,7 +257,7 @@ def run_in_copy(mutation: Mutation, *, full: bool = False, root: Path = ROOT, ti
         if apply:
             mutation.apply(copy)
         env = _environment(copy)
-        for command in pytest_commands(mutation, full):
+        for command in pytest_commands(mutation, full, stop_first=stop_first):
             outcome.runs.append(" ".join(command))
             code, output = _run(command, copy, env, timeout)
             outcome.output = output[-4000:]
@@ -243,6 +268,8 @@ def run_in_copy(mutation: Mutation, *, full: bool = False, root: Path = ROOT, ti
                 outcome.status = "caught"
                 where = _first_failure(output) or "(collection or import error)"
                 outcome.caught_by = where + (" [mpirun -n 2]" if command[0] == "mpirun" else "")
+                outcome.failed, outcome.collected = _failures(output), _collected(output)
+                outcome.stopped_at_first = "-x" in command
                 if code == STALLED_AFTER_FAILURE:
                     outcome.caught_by += ", then the ranks desynchronised (killed)"
                 break
@@ -261,7 +288,7 @@ def run_in_copy(mutation: Mutation, *, full: bool = False, root: Path = ROOT, ti
 
 def run_mutations(mutations: Sequence[Mutation], *, full: bool = False, root: Path = ROOT,
                   timeout: float = DEFAULT_TIMEOUT_S, baseline: bool = True, keep: bool = False,
-                  progress: Callable[[Outcome], None] | None = None) -> list[Outcome]:
+                  progress: Callable[[Outcome], None] | None = None, stop_first: bool = True) -> list[Outcome]:
     """Check the patterns, run the baseline (unless disabled), then every mutation; return the outcomes.
 
     Raises :class:`MutationError` when a pattern does not apply or the baseline fails.
@@ -280,23 +307,41 @@ def run_mutations(mutations: Sequence[Mutation], *, full: bool = False, root: Pa
                                 f"\n{base.output}")
     outcomes = []
     for mutation in mutations:
-        outcome = run_in_copy(mutation, full=full, root=root, timeout=timeout, files=files, keep=keep)
+        outcome = run_in_copy(mutation, full=full, root=root, timeout=timeout, files=files, keep=keep,
+                              stop_first=stop_first)
         outcomes.append(outcome)
         if progress:
             progress(outcome)
     return outcomes
 
 
+def _failing_count(o: Outcome) -> str:
+    """How many of the catching run's tests failed: ``k / n``, or why that is not known."""
+    if not o.caught:
+        return "—"
+    if o.stopped_at_first:
+        return "stopped at the 1st"
+    if not o.failed:
+        return "≥ 1"
+    return f"{len(o.failed)} / {o.collected}" if o.collected else str(len(o.failed))
+
+
 def markdown_table(mutations: Sequence[Mutation], outcomes: Sequence[Outcome]) -> str:
-    """The outcomes as a Markdown table (one row per mutation, in the order given)."""
-    lines = ["| mutation | file | deliberate bug | result | first failing test | s |",
-             "|---|---|---|---|---|---:|"]
+    """The outcomes as a Markdown table (one row per mutation, in the order given); when the runs were not
+    stopped at their first failure, every failing test follows, per mutation."""
+    lines = ["| mutation | file | deliberate bug | result | first failing test | tests failing | s |",
+             "|---|---|---|---|---|---:|---:|"]
     for m, o in zip(mutations, outcomes):
         lines.append(f"| `{m.name}` | `{m.path}` | {m.bug} | **{o.status}** | "
-                     f"{('`' + o.caught_by + '`') if o.caught_by else '—'} | {o.seconds:.0f} |")
+                     f"{('`' + o.caught_by + '`') if o.caught_by else '—'} | {_failing_count(o)} | {o.seconds:.0f} |")
     caught = sum(o.caught for o in outcomes)
     lines.append("")
     lines.append(f"{caught} of {len(outcomes)} mutations caught.")
+    listed = [(m, o) for m, o in zip(mutations, outcomes) if o.caught and len(o.failed) > 1]
+    if listed:
+        lines += ["", "Every failing test of the run that caught each bug (when more than one):", ""]
+        for m, o in listed:
+            lines.append(f"- `{m.name}`: " + ", ".join(f"`{t}`" for t in o.failed))
     return "\n".join(lines)
 
 
@@ -321,6 +366,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--no-baseline", action="store_true", help="skip the run on the unmutated copy")
     p.add_argument("--timeout", type=float, default=DEFAULT_TIMEOUT_S, help="seconds per pytest run")
     p.add_argument("--keep", action="store_true", help="keep the mutated copies (their path is printed)")
+    p.add_argument("--all-failures", action="store_true",
+                   help="run every serial target to the end (no -x) and list every failing test (slower)")
     p.add_argument("--markdown", type=Path, metavar="FILE", help="also write the table to FILE")
     args = p.parse_args(argv)
     if args.only:
@@ -339,12 +386,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 0
 
         def progress(o: Outcome) -> None:
-            print(f"{o.name:28s} {o.status:9s} {o.seconds:6.0f} s  {o.caught_by}", flush=True)
+            print(f"{o.name:28s} {o.status:9s} {o.seconds:6.0f} s  {_failing_count(o):>18s}  {o.caught_by}",
+                  flush=True)
             if o.status in ("error", "timeout") and o.output:
                 print(o.output, file=sys.stderr)
 
         outcomes = run_mutations(mutations, full=args.full, timeout=args.timeout, baseline=not args.no_baseline,
-                                 keep=args.keep, progress=progress)
+                                 keep=args.keep, progress=progress, stop_first=not args.all_failures)
     except MutationError as exc:
         print(f"mutate: {exc}", file=sys.stderr)
         return 2
