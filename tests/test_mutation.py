@@ -74,7 +74,8 @@ def test_pytest_summaries_are_parsed():
     output = ("tests/a.py::t1 FAILED\n=== short test summary info ===\nFAILED tests/a.py::t1 - assert 1 == 2\n"
               "ERROR tests/b.py::t2 - RuntimeError\nFAILED tests/a.py::t1 - again\n"
               "=== 2 failed, 40 passed, 3 skipped, 1 error in 12.5s ===\n")
-    assert mutate._failures(output) == ["tests/a.py::t1", "tests/b.py::t2"]
+    assert mutate._failures(output + "FAILED tes\n") == ["tests/a.py::t1", "tests/b.py::t2"]  # interleaved ranks
+    assert mutate._grouped(["a.py::t[1]", "a.py::t[2]", "a.py::u"]) == ["`a.py::t` × 2", "`a.py::u`"]
     assert mutate._collected(output) == 46
     assert mutate._collected("killed before the end") is None
     assert mutate._first_failure("tests/c.py::t3 FAILED [ 50%]\n") == "tests/c.py::t3"

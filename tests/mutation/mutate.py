@@ -166,7 +166,18 @@ def _environment(copy: Path) -> dict[str, str]:
 
 def _failures(output: str) -> list[str]:
     """Every failed test of pytest's short summary (``FAILED id``/``ERROR id`` lines), in order, without repeats."""
-    return list(dict.fromkeys(re.findall(r"^(?:FAILED|ERROR) (\S+)", output, re.MULTILINE)))
+    # under mpirun the ranks' lines may interleave: keep whole node ids (file::test) or files only
+    found = re.findall(r"^(?:FAILED|ERROR) (\S+)", output, re.MULTILINE)
+    return list(dict.fromkeys(t for t in found if "::" in t or t.endswith(".py")))
+
+
+def _grouped(tests: Sequence[str]) -> list[str]:
+    """Node ids with their parametrizations folded: ``file::test`` (× k when k parametrized cases failed)."""
+    counts: dict[str, int] = {}
+    for t in tests:
+        base = t.split("[", 1)[0]
+        counts[base] = counts.get(base, 0) + 1
+    return [f"`{base}`" + (f" × {k}" if k > 1 else "") for base, k in counts.items()]
 
 
 def _collected(output: str) -> int | None:
@@ -339,9 +350,10 @@ def markdown_table(mutations: Sequence[Mutation], outcomes: Sequence[Outcome]) -
     lines.append(f"{caught} of {len(outcomes)} mutations caught.")
     listed = [(m, o) for m, o in zip(mutations, outcomes) if o.caught and len(o.failed) > 1]
     if listed:
-        lines += ["", "Every failing test of the run that caught each bug (when more than one):", ""]
+        lines += ["", "Every failing test of the run that caught each bug, when more than one (× k: k parametrized "
+                  "cases):", ""]
         for m, o in listed:
-            lines.append(f"- `{m.name}`: " + ", ".join(f"`{t}`" for t in o.failed))
+            lines.append(f"- `{m.name}`: " + ", ".join(_grouped(o.failed)))
     return "\n".join(lines)
 
 
