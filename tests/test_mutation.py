@@ -75,6 +75,8 @@ def test_pytest_summaries_are_parsed():
               "ERROR tests/b.py::t2 - RuntimeError\nFAILED tests/a.py::t1 - again\n"
               "=== 2 failed, 40 passed, 3 skipped, 1 error in 12.5s ===\n")
     assert mutate._failures(output + "FAILED tes\n") == ["tests/a.py::t1", "tests/b.py::t2"]  # interleaved ranks
+    mpi = "FAILED tests/a.py::t_long[1]\nFAILED tests/a.py::t_lo\nFAILED tests/a.py::t_long[1]\n"
+    assert mutate._failures(mpi, mpi=True) == ["tests/a.py::t_long[1]"]
     assert mutate._grouped(["a.py::t[1]", "a.py::t[2]", "a.py::u"]) == ["`a.py::t` × 2", "`a.py::u`"]
     assert mutate._collected(output) == 46
     assert mutate._collected("killed before the end") is None

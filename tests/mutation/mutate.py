@@ -164,11 +164,16 @@ def _environment(copy: Path) -> dict[str, str]:
     return env
 
 
-def _failures(output: str) -> list[str]:
-    """Every failed test of pytest's short summary (``FAILED id``/``ERROR id`` lines), in order, without repeats."""
-    # under mpirun the ranks' lines may interleave: keep whole node ids (file::test) or files only
-    found = re.findall(r"^(?:FAILED|ERROR) (\S+)", output, re.MULTILINE)
-    return list(dict.fromkeys(t for t in found if "::" in t or t.endswith(".py")))
+def _failures(output: str, mpi: bool = False) -> list[str]:
+    """Every failed test of pytest's short summary (``FAILED id``/``ERROR id`` lines), in order, without repeats.
+
+    Under mpirun (``mpi``) every rank prints the summary and the ranks' lines may interleave: an id cut short
+    (not a node id ``file::test`` or a file, or a strict prefix of another failing id) is dropped."""
+    found = list(dict.fromkeys(re.findall(r"^(?:FAILED|ERROR) (\S+)", output, re.MULTILINE)))
+    found = [t for t in found if "::" in t or t.endswith(".py")]
+    if mpi:
+        found = [t for t in found if not any(u != t and u.startswith(t) for u in found)]
+    return found
 
 
 def _grouped(tests: Sequence[str]) -> list[str]:
@@ -279,7 +284,8 @@ def run_in_copy(mutation: Mutation, *, full: bool = False, root: Path = ROOT, ti
                 outcome.status = "caught"
                 where = _first_failure(output) or "(collection or import error)"
                 outcome.caught_by = where + (" [mpirun -n 2]" if command[0] == "mpirun" else "")
-                outcome.failed, outcome.collected = _failures(output), _collected(output)
+                outcome.failed = _failures(output, mpi=command[0] == "mpirun")
+                outcome.collected = _collected(output)
                 outcome.stopped_at_first = "-x" in command
                 if code == STALLED_AFTER_FAILURE:
                     outcome.caught_by += ", then the ranks desynchronised (killed)"
