@@ -71,13 +71,13 @@ def test_every_failing_test_is_listed_without_stopping_at_the_first():
 
 
 def test_pytest_summaries_are_parsed():
-    output = ("tests/a.py::t1 FAILED\n=== short test summary info ===\nFAILED tests/a.py::t1 - assert 1 == 2\n"
-              "ERROR tests/b.py::t2 - RuntimeError\nFAILED tests/a.py::t1 - again\n"
+    output = ("unit/a.py::t1 FAILED\n=== short test summary info ===\nFAILED unit/a.py::t1 - assert 1 == 2\n"
+              "ERROR unit/b.py::t2 - RuntimeError\nFAILED unit/a.py::t1 - again\n"
               "=== 2 failed, 40 passed, 3 skipped, 1 error in 12.5s ===\n")
-    assert mutate._failures(output + "FAILED tes\n") == ["tests/a.py::t1", "tests/b.py::t2"]  # interleaved ranks
-    mpi = "FAILED tests/a.py::t_long[1]\nFAILED tests/a.py::t_lo\nFAILED tests/a.py::t_long[1]\n"
-    assert mutate._failures(mpi, mpi=True) == ["tests/a.py::t_long[1]"]
+    assert mutate._failures(output + "FAILED tes\n") == ["unit/a.py::t1", "unit/b.py::t2"]  # interleaved ranks
+    mpi = "FAILED unit/a.py::t_long[1]\nFAILED unit/a.py::t_lo\nFAILED unit/a.py::t_long[1]\n"
+    assert mutate._failures(mpi, mpi=True) == ["unit/a.py::t_long[1]"]
     assert mutate._grouped(["a.py::t[1]", "a.py::t[2]", "a.py::u"]) == ["`a.py::t` × 2", "`a.py::u`"]
     assert mutate._collected(output) == 46
     assert mutate._collected("killed before the end") is None
-    assert mutate._first_failure("tests/c.py::t3 FAILED [ 50%]\n") == "tests/c.py::t3"
+    assert mutate._first_failure("unit/c.py::t3 FAILED [ 50%]\n") == "unit/c.py::t3"
