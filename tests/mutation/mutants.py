@@ -198,8 +198,8 @@ MUTATIONS: tuple[Mutation, ...] = (
         targets=("tests/test_fem_rve.py",)),
     Mutation(
         "scene-servo-degrees", "fenicsfoam/scene/build.py",
-        '{f"servo{i}": math.radians(angle) for i, angle in enumerate(s.servo_deg)}',
-        '{f"servo{i}": math.radians(angle) / 2 for i, angle in enumerate(s.servo_deg)}',
+        '{f"servo{i}": math.radians(a) for i, a in enumerate(s.servo_deg)}',
+        '{f"servo{i}": math.radians(a) / 2 for i, a in enumerate(s.servo_deg)}',
         "scene servo angles halved in the conversion to radians",
         targets=("tests/test_scene.py",)),
     Mutation(
