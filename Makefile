@@ -3,6 +3,7 @@
 #   make test      install, then the test suite serially and its `mpi` subset under mpirun -n 2
 #   make test-all  the same including `slow` cases
 #   make bench     benchmarks (tables printed, CSV written under out/bench/)
+#   make mutate    deliberate bugs applied to copies of the repository: are they caught? (MUTATE_ARGS="--full")
 SHELL := /bin/bash
 .SHELLFLAGS := -euo pipefail -c
 
@@ -26,7 +27,7 @@ export VTK_DEFAULT_OPENGL_WINDOW := vtkEGLRenderWindow
 MPIRUN := mpirun -n $(NPROC)
 PYTEST_MPI := $(MPIRUN) $(PY) -m mpi4py -m pytest -p no:cacheprovider -q
 
-.PHONY: install demo test test-all bench lint clean
+.PHONY: install demo test test-all bench mutate lint clean
 
 install: $(STAMP)
 
@@ -58,6 +59,9 @@ test-all: install
 
 bench: install
 	@for b in bench/*.py; do echo "== $$b"; $(PY) $$b --out out/bench; done
+
+mutate: install
+	$(PY) tests/mutation/mutate.py $(MUTATE_ARGS)
 
 lint: install
 	$(PY) -m ruff check .

@@ -663,3 +663,82 @@ def test_pcg_stencil_is_the_assembled_hexahedron_stiffness():
     expected = (K @ u.transpose(1, 2, 3, 0).ravel()).reshape(shape + (3,)).transpose(3, 0, 1, 2) / h.prod()
     assert np.abs(ws.q - expected).max() < 1e-12 * np.abs(expected).max()
     assert energy == pytest.approx(float(np.vdot(u, expected)), rel=1e-12)
+
+
+# --------------------------------------------------------------------------------------------------
+# Accuracy tied to tol: the equilibrium residual recomputed from the returned fields, and the CG error bounds
+# --------------------------------------------------------------------------------------------------
+VOIGT = ((0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1))
+MANDEL_W = np.array([1.0, 1.0, 1.0, np.sqrt(2.0), np.sqrt(2.0), np.sqrt(2.0)])
+
+
+def unit_wave_vectors(N: int, discretization: str) -> np.ndarray:
+    """n = k/|k| on the full FFT grid (3, N, N, N), written from the definitions in homogenization.fft's docstring
+    (``spectral``: k = 2π m; ``rotated``: Willot's k_j ∝ sin(π m_j/N) ∏_{l≠j} cos(π m_l/N)); n = 0 where k = 0.
+    Odd N only (no Nyquist frequencies to treat)."""
+    assert N % 2 == 1
+    m = np.meshgrid(*[np.fft.fftfreq(N, 1.0 / N)] * 3, indexing="ij")
+    if discretization == "spectral":
+        k = np.array([2 * np.pi * mj for mj in m])
+    else:
+        s, c = [np.sin(np.pi * mj / N) for mj in m], [np.cos(np.pi * mj / N) for mj in m]
+        k = 2 * N * np.array([s[0] * c[1] * c[2], c[0] * s[1] * c[2], c[0] * c[1] * s[2]])
+    norm = np.sqrt((k**2).sum(axis=0))
+    zero = norm <= 1e-10 * norm.max()
+    return np.where(zero, 0.0, k / np.where(zero, 1.0, norm))
+
+
+def projected_rms(stress_voigt: np.ndarray, n: np.ndarray) -> float:
+    """‖G[σ]‖ (root mean square over the voxels of the tensor Frobenius norm) of a Voigt stress field (6, N, N, N),
+    G[τ̂] = n⊗w + w⊗n, w = τ̂n − ½ (n·τ̂n) n: the orthogonal projection onto compatible zero-mean strain fields."""
+    N = stress_voigt.shape[1]
+    T = np.empty((3, 3) + stress_voigt.shape[1:])
+    for I, (i, j) in enumerate(VOIGT):
+        T[i, j] = T[j, i] = stress_voigt[I]
+    T_hat = np.fft.fftn(T, axes=(2, 3, 4))
+    tn = np.einsum("ij...,j...->i...", T_hat, n)
+    w = tn - 0.5 * np.einsum("i...,i...->...", n, tn) * n
+    G = n[:, None] * w[None] + w[:, None] * n[None]
+    return float(np.sqrt((np.abs(G) ** 2).sum() / N**6))
+
+
+ACCURACY_IMAGE = sphere_image(15, 0.32)
+ACCURACY_PHASES = [C_SOFT, 4.0 * TI]
+#: extreme Mandel eigenvalues over the phases: the spectrum of the CG operator G C G on compatible fields
+_EIG = np.concatenate([np.linalg.eigvalsh(C * np.outer(MANDEL_W, MANDEL_W)) for C in ACCURACY_PHASES])
+C_MIN, C_MAX = _EIG.min(), _EIG.max()
+
+
+@pytest.fixture(scope="module")
+def exact_fft():
+    return {d: homogenize_fft(ACCURACY_IMAGE, ACCURACY_PHASES, discretization=d, tol=1e-12, threads=1)
+            for d in ("rotated", "spectral")}
+
+
+@pytest.mark.parametrize("discretization", ["rotated", "spectral"])
+@pytest.mark.parametrize("tol", [1e-2, 1e-3, 1e-4])
+def test_equilibrium_residual_of_the_returned_fields_is_below_tol(exact_fft, discretization, tol):
+    """The stopping criterion, recomputed independently: ‖G[σ]‖/‖G[C:E]‖ ≤ tol for the returned stress field.
+
+    CG minimises the energy error, so with δ the error of the strain fluctuation and r = G[σ] (Vondřejc et al.):
+    C_JJ(tol) − C_JJ = ⟨δ, C δ⟩ ∈ [‖r‖²/c_max, ‖r‖²/c_min] (diagonal: quadratic in the residual, from above) and
+    |C_IJ(tol) − C_IJ| ≤ ‖G[C:E_I]‖ ‖r_J‖/c_min, c_min, c_max the extreme Mandel eigenvalues of the phases: the
+    error of C shrinks in proportion to tol (to tol² on the diagonal). C at tol = 1e-12 stands for the exact
+    solution of the discrete problem."""
+    n = unit_wave_vectors(ACCURACY_IMAGE.shape[0], discretization)
+    r = homogenize_fft(ACCURACY_IMAGE, ACCURACY_PHASES, discretization=discretization, tol=tol, threads=1,
+                       return_fields=True)
+    stiff = np.array(ACCURACY_PHASES)[ACCURACY_IMAGE]                       # (N, N, N, 6, 6) Voigt
+    load, residual = np.empty(6), np.empty(6)
+    for J in range(6):
+        load[J] = projected_rms(np.moveaxis(stiff[..., :, J], -1, 0), n)    # ‖G[C:E_J]‖, E_J = unit Voigt strain
+        residual[J] = projected_rms(r.fields["stress"][J], n)
+    assert np.all(load > 0)
+    assert np.all(residual <= tol * load), residual / load
+    assert np.all(residual > 0)
+    err = r.C_raw - exact_fft[discretization].C_raw
+    roundoff = 1e-12 * np.abs(r.C_raw).max()
+    for J in range(6):
+        assert residual[J] ** 2 / C_MAX - roundoff <= err[J, J] <= residual[J] ** 2 / C_MIN + roundoff, J
+        for I in range(6):
+            assert abs(err[I, J]) <= load[I] * residual[J] / C_MIN + roundoff, (I, J)

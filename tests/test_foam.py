@@ -5,6 +5,7 @@ the same foam with shifted seeds, the STL's enclosed volume vs the density) or a
 (8–20 cells) so that the whole file runs in well under a minute.
 """
 
+import meshio
 import numpy as np
 import pytest
 from scipy import ndimage
@@ -54,6 +55,27 @@ def test_shifted_seeds_give_the_shifted_strut_network(foam12):
     assert shifted.radius == pytest.approx(foam12.radius, rel=2e-3)   # same density, another sample of it
 
 
+def test_voxelize_is_the_distance_test_at_the_documented_voxel_centres(foam12):
+    """voxelize(N)[i, j, k] = dist(c_ijk, struts) ≤ radius at the centres c_ijk = ((i+½)/N, (j+½)/N, (k+½)/N),
+    the convention of the FFT solver; here with the public exact distance, point by point."""
+    for N in (13, 20):
+        c = (np.arange(N) + 0.5) / N
+        centres = np.stack(np.meshgrid(c, c, c, indexing="ij"), axis=-1).reshape(-1, 3)
+        expected = (foam12.distance(centres) <= foam12.radius).reshape(N, N, N)
+        img = foam12.voxelize(N)
+        assert img.shape == (N, N, N) and img.dtype == bool
+        assert np.array_equal(img, expected), np.count_nonzero(img != expected)
+
+
+def test_seeds_shifted_by_whole_voxels_roll_the_image(foam12):
+    """Seeds shifted by k/N (mod 1) give the same struts shifted by k/N, hence exactly the image rolled by k
+    voxels (at the same strut radius: the radius is re-estimated on a density sample that does not move)."""
+    N, k = 16, np.array([3, 5, 11])
+    shifted = VoronoiFoam.from_seeds(np.mod(foam12.seeds + k / N, 1.0), 0.18, gamma=1.0)
+    shifted.radius = foam12.radius
+    assert np.array_equal(shifted.voxelize(N), np.roll(foam12.voxelize(N), tuple(k), axis=(0, 1, 2)))
+
+
 def _periodic_components(img: np.ndarray) -> int:
     """Number of connected components (6-connectivity) of a periodic boolean image."""
     labels, n = ndimage.label(img)
@@ -91,7 +113,6 @@ def test_gamma_aligns_struts_with_the_yz_plane():
 
 
 def test_stl_encloses_the_solid_volume(foam12, tmp_path):
-    meshio = pytest.importorskip("meshio")
     path = foam12.to_stl(tmp_path / "foam.stl", 48)
     assert not list(tmp_path.glob(".*tmp"))
     mesh = meshio.read(path)

@@ -35,7 +35,8 @@ def test_image_to_json(image_file, tmp_path, capsys):
     data = json.loads(out.read_text())
     C = np.array(data["C"])
     materials = [np.zeros((6, 6)), isotropic_voigt(2.0, 0.25)]
-    expected = homogenize_fft(porous_image().astype(np.int8), materials, tol=1e-8, threads=1).C
+    library = homogenize_fft(porous_image().astype(np.int8), materials, tol=1e-8, threads=1)
+    expected = library.C
     assert np.allclose(C, expected, rtol=1e-12, atol=1e-14)
     ti = closest_transverse_isotropic(expected, axis=0)
     assert data["ti_fit"]["axis"] == [1.0, 0.0, 0.0]
@@ -43,7 +44,8 @@ def test_image_to_json(image_file, tmp_path, capsys):
     assert data["ti_fit"]["error"] == pytest.approx(ti.error, rel=1e-6, abs=1e-12)
     assert data["engineering_constants"]["E1"] > data["engineering_constants"]["E2"]  # channel along x
     assert data["inputs"]["E_solid"] == 2.0 and data["inputs"]["image"] == str(image_file)
-    assert data["info"]["scheme"] == "pcg" and data["info"]["discretization"] == "rotated"
+    # the library's default solver, which is pcg, the documented default of the rotated discretization
+    assert data["info"]["scheme"] == library.info["scheme"] == "pcg" and data["info"]["discretization"] == "rotated"
     assert len(data["iterations"]) == 6 and data["converged"] is True
     assert data["software"]["fenicsfoam"] and data["solid_fraction"] == pytest.approx(porous_image().mean())
     assert "isotropic_fit" in data and data["info"]["time_per_iteration_s"] > 0
@@ -65,6 +67,22 @@ def test_extreme_moduli_give_the_normalised_constants(image_file, tmp_path, E_so
     assert np.abs(C - C1).max() < 1e-12 * np.abs(C1).max()
     e, e1 = runs[E_solid]["engineering_constants"], runs["1"]["engineering_constants"]
     assert e["E1"] / float(E_solid) == pytest.approx(e1["E1"], rel=1e-12) and e["nu12"] == pytest.approx(e1["nu12"])
+
+
+def test_solid_image_gives_the_solids_closed_form_stiffness(tmp_path):
+    """An all-solid image: C is the isotropic stiffness of --E-solid, --nu-solid (λ = Eν/((1+ν)(1−2ν)),
+    μ = E/(2(1+ν)), written out here), and the isotropic fit is exact."""
+    np.save(tmp_path / "solid.npy", np.ones((6, 6, 6), dtype=bool))
+    out = tmp_path / "solid.json"
+    assert main(["--image", str(tmp_path / "solid.npy"), "--E-solid", "3", "--nu-solid", "0.2", "--threads", "1",
+                 "--out", str(out)]) == 0
+    E, nu = 3.0, 0.2
+    lam, mu = E * nu / ((1 + nu) * (1 - 2 * nu)), E / (2 * (1 + nu))
+    exact = np.diag([2 * mu] * 3 + [mu] * 3) + np.pad(np.full((3, 3), lam), ((0, 3), (0, 3)))
+    data = json.loads(out.read_text())
+    np.testing.assert_allclose(np.array(data["C"]), exact, rtol=1e-13, atol=1e-13 * E)
+    assert data["isotropic_fit"]["E"] == pytest.approx(E, rel=1e-13)
+    assert data["isotropic_fit"]["nu"] == pytest.approx(nu, rel=1e-13)
 
 
 def run_error(argv, capsys):
@@ -127,7 +145,8 @@ def test_console_script(image_file, tmp_path):
 
 
 def test_foam_path(tmp_path):
-    foam_module = pytest.importorskip("meshes.foam")
+    from meshes import foam as foam_module
+
     out = tmp_path / "foam.json"
     args = dict(density=0.3, gamma=0.5, cells=4, seed=2, resolution=16)
     assert main([f"--{k}={v}" for k, v in args.items()] + ["--out", str(out)]) == 0
