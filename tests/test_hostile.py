@@ -442,7 +442,7 @@ FOAM_ARGS = ["--density", "0.3", "--cells", "8", "--resolution", "16", "--thread
     ([*FOAM_ARGS, "--cells", "1"], "--cells must be an integer >= 2, got 1"),
     ([*FOAM_ARGS, "--resolution", "2"], "--resolution must be an integer >= 8, got 2"),
     ([*FOAM_ARGS, "--seed", "-1"], "--seed must be an integer >= 0, got -1"),
-    ([*FOAM_ARGS, "--gamma", "1e-300"], "--gamma 1e-300 --cells 8 --seed 0: the periodic Voronoi diagram"),
+    ([*FOAM_ARGS, "--gamma", "1e-300"], "--gamma 1e-300 --cells 8 --seed 0: gamma=1e-300 is too flat for n_cells=8"),
     ([*FOAM_ARGS, "--gamma", "nan"], "--gamma must be in (0, 1], got nan"),
     ([*FOAM_ARGS, "--density", "0.9999"], "--density 0.9999 --gamma 1 --cells 8 --seed 0: density 0.9999 is "
                                           "outside the valid range"),
