@@ -84,31 +84,20 @@ def _run(args: argparse.Namespace) -> int:
     options that nothing has read by the end of the run are reported in a warning (as PETSc's ``-options_left``).
     """
     from mpi4py import MPI
-    from petsc4py import PETSc
 
     from fenicsfoam.scene import run_scene
     from fenicsfoam.scene.outputs import RunFolder
-    from foambase.petsc_options import option_names, unused_command_line_options
+    from foambase.petsc_options import command_line_options
 
     comm = MPI.COMM_WORLD
     RunFolder(args.out, comm, what="--out").check()
-    db = PETSc.Options()
-    if args.passthrough:
-        db.insertString(" ".join(args.passthrough))
-    try:
+    with command_line_options(args.passthrough):
         if args.uncertainty:
             from fenicsfoam.uncertainty import run_with_uncertainty
 
             result = run_with_uncertainty(args.scene, args.out, samples_csv=args.samples, comm=comm)
         else:
             result = run_scene(args.scene, args.out, comm=comm)
-    finally:
-        unused = unused_command_line_options(args.passthrough)
-        if unused:
-            logger.warning("PETSc options after '--' that nothing used: %s (misspelt, or not options of this "
-                           "solver; the scene's solver options take the prefix -%s)", " ".join(unused), "scene_")
-        for name in option_names(args.passthrough):  # this run's: a later run in the process starts clean
-            db.delValue(name.lstrip("-"))
     if comm.rank == 0:
         print(result.table())
         print(f"outputs in {args.out}")

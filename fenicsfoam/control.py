@@ -624,32 +624,22 @@ def _check(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
 
 def _run(args: argparse.Namespace) -> int:
     from mpi4py import MPI
-    from petsc4py import PETSc
 
     from foambase.files import check_output_dir
     from foambase.mpi import on_rank0
-    from foambase.petsc_options import option_names, unused_command_line_options
+    from foambase.petsc_options import command_line_options
 
     comm = MPI.COMM_WORLD
     on_rank0(comm, lambda: check_output_dir(args.out, "--out"), f"--out {args.out} cannot be used")
-    db = PETSc.Options()
-    if args.passthrough:
-        db.insertString(" ".join(args.passthrough))
-    try:
-        result = control_servos(args.scene, parse_targets(args.target), comm=comm, servo_range=args.servo_range,
-                                tolerances={"m": args.tol_m, "deg": args.tol_deg},
-                                max_iterations=args.max_iterations, out_dir=args.out)
-    except (UnreachableTargetError, _NotConverged) as exc:
-        if comm.rank == 0:
-            print(f"closest pose written to {args.out / 'control.json'} (reached = false)")
-        raise exc
-    finally:
-        unused = unused_command_line_options(args.passthrough)
-        if unused:
-            logger.warning("PETSc options after '--' that nothing used: %s (misspelt, or not options of this "
-                           "solver; the scene's solver options take the prefix -%s)", " ".join(unused), "scene_")
-        for name in option_names(args.passthrough):  # this run's: a later command in the process starts clean
-            db.delValue(name.lstrip("-"))
+    with command_line_options(args.passthrough):
+        try:
+            result = control_servos(args.scene, parse_targets(args.target), comm=comm,
+                                    servo_range=args.servo_range, tolerances={"m": args.tol_m, "deg": args.tol_deg},
+                                    max_iterations=args.max_iterations, out_dir=args.out)
+        except (UnreachableTargetError, _NotConverged):
+            if comm.rank == 0:
+                print(f"closest pose written to {args.out / 'control.json'} (reached = false)")
+            raise
     if comm.rank == 0:
         print("servo (deg): " + ", ".join(f"{a:.6f}" for a in result.servo_deg))
         for name, value in result.target.items():

@@ -24,13 +24,16 @@ import contextlib
 import ctypes
 import ctypes.util
 import functools
+import logging
 import re
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 from foambase.errors import InputError
 
-__all__ = ["check_options", "deferred", "error_message", "option_names", "option_used",
+logger = logging.getLogger(__name__)
+
+__all__ = ["check_options", "command_line_options", "deferred", "error_message", "option_names", "option_used",
            "unused_command_line_options"]
 
 #: Options read only when a solver is set up or a solve ends (see the module docstring).
@@ -177,3 +180,27 @@ def option_names(tokens: Sequence[str]) -> list[str]:
 def unused_command_line_options(tokens: Sequence[str]) -> list[str]:
     """The options of ``tokens`` (inserted into PETSc's database) that no PETSc object has read."""
     return [name for name in option_names(tokens) if not option_used(name.lstrip("-"))]
+
+
+@contextlib.contextmanager
+def command_line_options(tokens: Sequence[str], prefix: str = "scene_"):
+    """PETSc options given on a command line (after ``--``) for the duration of one command.
+
+    Inserts ``tokens`` into PETSc's options database, and on leaving (also after an error) warns about those that no
+    PETSc object read and removes them all, so that a later command in the same process (tests, notebooks) starts
+    from a clean database. ``prefix`` is the options prefix of the command's solver, named in the warning.
+    """
+    from petsc4py import PETSc
+
+    db = PETSc.Options()
+    if tokens:
+        db.insertString(" ".join(tokens))
+    try:
+        yield
+    finally:
+        unused = unused_command_line_options(tokens)
+        if unused:
+            logger.warning("PETSc options after '--' that nothing used: %s (misspelt, or not options of this "
+                           "solver; the scene's solver options take the prefix -%s)", " ".join(unused), prefix)
+        for name in option_names(tokens):
+            db.delValue(name.lstrip("-"))
