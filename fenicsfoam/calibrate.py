@@ -40,7 +40,6 @@ longer converges.
 from __future__ import annotations
 
 import copy
-import json
 import logging
 import math
 import os
@@ -49,7 +48,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from foambase.errors import InputError
+from fenicsfoam.scene.calibration import CalibrationError, read_calibration
 from foambase.files import write_json_atomic
 
 __all__ = [
@@ -76,13 +75,6 @@ AFFINE_GROUP_KINDS = frozenset({"displacement"})
 COMPONENTS = ("x", "y", "z")
 #: Name of the file :func:`calibrate_E_solid` writes in ``out_dir``.
 CALIBRATION_JSON = "calibration.json"
-
-
-class CalibrationError(InputError):
-    """A calibration cannot be done: bad input, or a target no ``E_solid`` reaches; the message says which value.
-
-    An :class:`~foambase.errors.InputError` (a ``ValueError``): the command line exits with status 2.
-    """
 
 
 @dataclass(frozen=True)
@@ -350,22 +342,6 @@ def write_calibration(calibration: Calibration, path: str | os.PathLike, comm=No
         write_json_atomic(path, calibration.to_dict())
     comm.Barrier()
     return path
-
-
-def read_calibration(path: str | os.PathLike) -> float:
-    """``E_solid`` (Pa) of a ``calibration.json``; :class:`CalibrationError` names the file and what is wrong."""
-    path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except OSError as exc:
-        raise CalibrationError(f"cannot read calibration file {str(path)!r}: {exc.strerror}") from exc
-    except json.JSONDecodeError as exc:
-        raise CalibrationError(f"calibration file {str(path)!r} is not valid JSON: {exc}") from exc
-    E = data.get("E_solid") if isinstance(data, dict) else None
-    if isinstance(E, bool) or not isinstance(E, int | float) or not (math.isfinite(E) and E > 0):
-        raise CalibrationError(f"calibration file {str(path)!r}: 'E_solid' must be a positive modulus in Pa, "
-                               f"got {E!r}")
-    return float(E)
 
 
 # --------------------------------------------------------------------------------------------------

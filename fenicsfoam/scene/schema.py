@@ -215,7 +215,7 @@ def _read_fem(scene: _Table) -> tuple[str, int, dict[str, Any]]:
 
 def _calibrated_E_solid(region: _Table, base: Path | None) -> float:
     """A foam region's ``E_solid = {calibration = "path"}``: the modulus of a ``calibration.json``."""
-    from fenicsfoam.calibrate import CalibrationError, read_calibration
+    from fenicsfoam.scene.calibration import CalibrationError, read_calibration
 
     spec = region.table("E_solid")
     path = Path(spec.string("calibration", required=True))
