@@ -27,6 +27,14 @@ Green norm** ``‖r‖_{K_I⁻¹}/‖r_0‖_{K_I⁻¹}`` (= ``‖G[σ]‖/‖G[C
 rows are comparable whatever the preconditioner's own norm) and ``C_JJ``. ``--ritz`` also prints the smallest
 Ritz values of the Green-preconditioned operator (from the CG coefficients of the ``green`` runs).
 ``--only NAME ...`` runs the named rows only.
+
+``--reuse METHOD ...`` runs instead the six unit load cases of the RVE (one operator, six right-hand sides) and
+counts the K applications in all: ``sequential`` (one Green PCG after the other: what ``pcg`` does), ``block``
+(block PCG on the six together, K-orthonormalized directions, converged columns leave the block), ``init`` and
+``balanced`` (eigCG-type harvesting of ``--nev`` smallest eigenpairs per solve in a window of ``--window`` Lanczos
+vectors, accumulated over the solves and deflating the later ones: in the initial guess only, or in every
+iteration); it reports the stored nodal vectors and C against the sequential row, and writes
+``DIR/bench_fft_preconditioners_reuse.csv``.
 Usage: ``python bench/bench_fft_preconditioners.py --out out/bench [--n 32] [--gamma 1]``; writes
 ``DIR/bench_fft_preconditioners.csv``.
 """
@@ -236,6 +244,225 @@ def green_reference(problem, C0):
     return precondition
 
 
+# --------------------------------------------------------------------------------------------------
+# Reuse across the 6 load cases (--reuse): the operator is the same for all six right-hand sides
+# --------------------------------------------------------------------------------------------------
+def _dots(X, Y):
+    """Gram matrix ``[⟨X_i, Y_j⟩]`` of two stacks of nodal fields (BLAS on the flattened stacks)."""
+    return X.reshape(len(X), -1) @ Y.reshape(len(Y), -1).T
+
+
+def _combine(W, X):
+    """``Σ_i W[i, j] X_i`` for each column ``j`` of ``W``: a new stack."""
+    return (W.T @ X.reshape(len(X), -1)).reshape((W.shape[1],) + X.shape[1:])
+
+
+class Counted:
+    """K and K_I⁻¹ of ``Problem`` on single nodal fields, counting the applications."""
+
+    def __init__(self, problem):
+        self.problem, self.matvecs, self.greens = problem, 0, 0
+
+    def K(self, u):
+        self.matvecs += 1
+        return self.problem.apply(u)[0]
+
+    def green(self, r):
+        self.greens += 1
+        return self.problem.green(r)
+
+    def rhs(self, E):
+        return -self.problem.apply(None, E)[0]
+
+    def mean_stress(self, x, E):
+        """⟨σ⟩ = ⟨C (E + B x)⟩ of the final iterate (Mandel)."""
+        ws = self.problem.ws
+        ws.p[:, 1:-1] = x
+        ws.fill_ghosts(ws.p)
+        return ws.apply(True, E)[1] / ws.size
+
+
+def k_orthonormalize(P, KP, drop):
+    """``P ← P W``, ``KP ← KP W`` with ``(PW)ᵀ K (PW) = I``; directions of ``PᵀKP`` eigenvalue ≤ ``drop`` × the largest
+    are dropped (rank-deficient block, converged or dependent columns: the breakdown of O'Leary's block CG)."""
+    G = _dots(P, KP)
+    lam, W = np.linalg.eigh((G + G.T) / 2)
+    keep = lam > drop * lam.max()
+    W = W[:, keep] / np.sqrt(lam[keep])
+    return _combine(W, P), _combine(W, KP)
+
+
+def block_pcg(op, rhs, tol, maxiter, drop=1e-12):
+    """Block PCG (O'Leary 1980) on all right-hand sides together, Green-preconditioned, with K-orthonormalized
+    search directions (rank-revealing: dependent directions are dropped, as in the breakdown-free block CG of Ji &
+    Li 2017) and a shrinking block: a column whose Green residual ``‖r‖_{K_I⁻¹}/‖b‖_{K_I⁻¹} ≤ tol`` leaves the
+    block. Returns the solutions, the block iterations and the final relative Green residuals."""
+    R = np.array(rhs)
+    X = np.zeros_like(R)
+    Z = np.array([op.green(r) for r in R])
+    rz0 = np.einsum("ij,ij->i", R.reshape(len(R), -1), Z.reshape(len(Z), -1))
+    P = KP = None
+    for it in range(maxiter + 1):
+        res = np.sqrt(np.maximum(np.einsum("ij,ij->i", R.reshape(len(R), -1), Z.reshape(len(Z), -1)), 0) / rz0)
+        active = np.flatnonzero(res > tol)
+        if not len(active) or it == maxiter:
+            return X, it, res
+        Pn = Z[active] if P is None else Z[active] - _combine(_dots(KP, Z[active]), P)  # K-conjugate to the last P
+        P, KP = k_orthonormalize(Pn, np.array([op.K(p) for p in Pn]), drop)
+        alpha = _dots(P, R[active])  # (directions, active columns)
+        X[active] += _combine(alpha, P)
+        R[active] -= _combine(alpha, KP)
+        for j in active:
+            Z[j] = op.green(R[j])
+
+
+class Harvest:
+    """The smallest eigenpairs of ``K y = θ K_I y`` from the Lanczos vectors of a Green-preconditioned CG solve, in a
+    window of ``m`` vectors with the restart of eigCG (Stathopoulos & Orginos 2010): at a full window keep the ``nev``
+    smallest Ritz vectors of the window and the ``nev`` of the window without its last vector. The Lanczos vectors
+    ``v_j = z_j/√(r_jᵀz_j)`` come with ``K v_j`` (from ``K p_j − β_{j−1} K p_{j−1}``, no extra matvec) and
+    ``K_I v_j = r_j/√(r_jᵀz_j)``, and the Rayleigh–Ritz problem of the window is formed explicitly (eigCG updates
+    the tridiagonal instead: the same subspace in exact arithmetic). The null space of K (nodes touching only void,
+    θ = 0: the right-hand sides are orthogonal to it) is excluded."""
+
+    def __init__(self, m, nev):
+        self.m, self.nev = m, nev
+        self.V, self.KV, self.MV = [], [], []
+        self.last_q, self.beta, self.theta = None, 0.0, np.zeros(0)
+
+    def step(self, z, r, q, rz):
+        kz = q if self.last_q is None else q - self.beta * self.last_q
+        self.last_q = q
+        s = 1.0 / np.sqrt(rz)
+        self.V.append(z * s)
+        self.KV.append(kz * s)
+        self.MV.append(r * s)
+        if len(self.V) >= self.m:
+            self.restart(eigcg=True)
+
+    def restart(self, eigcg):
+        V, KV, MV = (np.array(a) for a in (self.V, self.KV, self.MV))
+        A, B = _dots(V, KV), _dots(V, MV)
+        A, B = (A + A.T) / 2, (B + B.T) / 2
+
+        def smallest(A, B):
+            lb, Vb = np.linalg.eigh(B)
+            T = Vb[:, lb > 1e-12 * lb.max()] / np.sqrt(lb[lb > 1e-12 * lb.max()])
+            w, Y = np.linalg.eigh(T.T @ A @ T)
+            good = w > 1e-9  # θ = 0: the null space of K
+            return w[good][:self.nev], (T @ Y)[:, good][:, :self.nev]
+
+        self.theta, U = smallest(A, B)
+        if eigcg:
+            _, U2 = smallest(A[:-1, :-1], B[:-1, :-1])
+            U, _ = np.linalg.qr(np.hstack([U, np.vstack([U2, np.zeros((1, U2.shape[1]))])]))
+        self.V, self.KV, self.MV = (list(_combine(U, X)) for X in (V, KV, MV))
+
+
+def deflated_pcg(op, b, tol, maxiter, space=None, balanced=False, harvest=None):
+    """Green-preconditioned CG with the deflation space ``space = (U, KU)`` (``UᵀKU = I``): ``init`` (init-CG,
+    Stathopoulos & Orginos 2010: only the initial guess ``x₀ = U Uᵀ b``) or ``balanced`` (every iteration: the
+    preconditioner ``(I − U KUᵀ) K_I⁻¹ (I − KU Uᵀ) + U Uᵀ``). Stops on the Green residual ``‖r‖_{K_I⁻¹}/‖b‖_{K_I⁻¹}``
+    (the criterion of ``pcg``; the balanced variant pays one more K_I⁻¹ per iteration for it). Returns
+    ``(x, iterations, residual)``."""
+    x = np.zeros_like(b)
+    r = b.copy()
+    rz0 = np.vdot(b, op.green(b))
+    precondition = op.green
+    if space is not None:
+        U, KU = space
+        c = _dots(U, r[None])[:, 0]
+        x += _combine(c[:, None], U)[0]
+        r -= _combine(c[:, None], KU)[0]
+        if balanced:
+            def precondition(r):
+                c = _dots(U, r[None])
+                y = op.green(r - _combine(c, KU)[0])
+                return y + _combine(c - _dots(KU, y[None]), U)[0]
+    plain = space is None or not balanced
+    z = precondition(r)
+    rz = np.vdot(r, z)
+    p = z.copy()
+    it = 0
+    while True:
+        green = rz if plain else np.vdot(r, op.green(r))
+        if np.sqrt(max(green, 0.0) / rz0) <= tol or it == maxiter:
+            return x, it, float(np.sqrt(max(green, 0.0) / rz0))
+        q = op.K(p)
+        it += 1
+        alpha = rz / np.vdot(p, q)
+        if harvest is not None:
+            harvest.step(z, r, q, rz)
+        x += alpha * p
+        r -= alpha * q
+        z = precondition(r)
+        rz_new = np.vdot(r, z)
+        beta = rz_new / rz
+        if harvest is not None:
+            harvest.beta = beta
+        p = z + beta * p
+        rz = rz_new
+
+
+def reuse(args, problem):
+    """The rows of ``--reuse``: total K applications for the 6 load cases, one after another (``sequential``: what
+    ``pcg`` does), together (``block``), and with the eigenpairs harvested in the earlier solves deflating the
+    later ones (``init``, ``balanced``; window ``--window``, ``--nev`` per solve, accumulated)."""
+    op = Counted(problem)
+    cases = np.eye(6)
+    rhs = [op.rhs(E) for E in cases]
+    n = rhs[0].size
+    rows, reference = [], None
+
+    def record(method, X, iterations, worst, cpu, stored, reference):
+        C = np.array([op.mean_stress(x, E) for x, E in zip(X, cases)]).T
+        reference = C if reference is None else reference
+        rows.append({"N": args.n, "gamma": args.gamma, "method": method, "iterations": "/".join(map(str, iterations)),
+                     "matvecs": op.matvecs, "green_applications": op.greens, "green_residual_max": worst,
+                     "converged": worst <= args.tol, "dC": float(np.abs(C - reference).max() / np.abs(reference).max()),
+                     "cpu_s": cpu, "stored_vectors": stored, "stored_MB": stored * n * 8 / 1e6})
+        print(" ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in rows[-1].items()),
+              flush=True)
+        return reference
+
+    for method in args.reuse:
+        op.matvecs = op.greens = 0
+        t0 = time.process_time()
+        iterations, worst, space = [], 0.0, None
+        if method == "block":
+            X, it, res = block_pcg(op, rhs, args.tol, args.maxiter)
+            iterations, worst, stored = [it], float(res.max()), 5 * 6  # X, R, Z, P, KP of 6 columns
+        else:
+            X = []
+            for b in rhs:
+                harvest = Harvest(args.window, args.nev) if method != "sequential" else None
+                x, it, res = deflated_pcg(op, b, args.tol, args.maxiter, space, method == "balanced", harvest)
+                X.append(x)
+                iterations.append(it)
+                worst = max(worst, res)
+                if harvest is not None:
+                    if len(harvest.V) > args.nev:
+                        harvest.restart(eigcg=False)
+                    U, KU = np.array(harvest.V), np.array(harvest.KV)
+                    if space is not None:
+                        U, KU = np.concatenate([space[0], U]), np.concatenate([space[1], KU])
+                    space = k_orthonormalize(U, KU, 1e-10)
+            stored = 5 if method == "sequential" else 5 + 3 * args.window + 2 * len(space[0])
+        cpu = time.process_time() - t0
+        reference = record(method, X, iterations, worst, cpu, stored, reference)
+        if method == "balanced":  # a bound: the six cases again, deflated by everything harvested from all six
+            op.matvecs = op.greens = 0
+            t0 = time.process_time()
+            X, iterations, worst = [], [], 0.0
+            for b in rhs:
+                x, it, res = deflated_pcg(op, b, args.tol, args.maxiter, space, True)
+                X.append(x)
+                iterations.append(it)
+                worst = max(worst, res)
+            record("balanced-again", X, iterations, worst, time.process_time() - t0, stored, reference)
+    return rows
+
+
 def main(args):
     from meshes.foam import VoronoiFoam
 
@@ -244,6 +471,14 @@ def main(args):
     solid = isotropic_voigt(1.0, 0.3)
     stiffness = {0: np.zeros((6, 6)), 1: voigt_to_mandel(solid)}
     problem = Problem(phases, stiffness)
+    if args.reuse:
+        rows = reuse(args, problem)
+        with atomic_open(args.out / "bench_fft_preconditioners_reuse.csv") as fh:
+            writer = csv.DictWriter(fh, list(rows[0]))
+            writer.writeheader()
+            writer.writerows(rows)
+        print(f"written {args.out / 'bench_fft_preconditioners_reuse.csv'}")
+        return
     K = assemble(phases, stiffness)
     builders = {"green": lambda: problem.green,
                 "green-jacobi": lambda: (lambda S: lambda r: S * problem.green(S * r))(
@@ -294,4 +529,8 @@ if __name__ == "__main__":
     p.add_argument("--maxiter", type=int, default=2000)
     p.add_argument("--ritz", action="store_true")
     p.add_argument("--only", nargs="+", default=None, help="run only these rows (e.g. green local-hg-2)")
+    p.add_argument("--reuse", nargs="+", default=None, choices=("sequential", "block", "init", "balanced"),
+                   help="instead of the preconditioner rows: the 6 load cases with these methods (K applications)")
+    p.add_argument("--window", type=int, default=40, help="--reuse init/balanced: eigCG window m")
+    p.add_argument("--nev", type=int, default=10, help="--reuse init/balanced: eigenpairs kept per solve")
     main(p.parse_args())
