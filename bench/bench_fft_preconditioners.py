@@ -443,6 +443,8 @@ def reuse(args, problem):
                 if harvest is not None:
                     if len(harvest.V) > args.nev:
                         harvest.restart(eigcg=False)
+                    print(f"  {method}, load case {len(X) - 1}: {it} iterations, smallest harvested Ritz values "
+                          f"{', '.join(f'{t:.2e}' for t in harvest.theta[:3])}", flush=True)
                     U, KU = np.array(harvest.V), np.array(harvest.KV)
                     if space is not None:
                         U, KU = np.concatenate([space[0], U]), np.concatenate([space[1], KU])
