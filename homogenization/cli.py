@@ -1,7 +1,8 @@
 """Homogenization commands: ``homogenize`` (one foam or phase image → JSON) and ``table`` (the foam-table sweep).
 
 ``fenicsfoam homogenize`` and the ``homogenize`` program are the same command (:data:`HOMOGENIZE`): FFT
-homogenization of a stochastic Voronoi foam or of a phase image, written as JSON. The solid is isotropic
+homogenization of a stochastic Voronoi foam (in its periodic box: ``--box`` and ``--distance`` choose the foam as for
+``table``) or of a phase image, written as JSON. The solid is isotropic
 (``--E-solid``, ``--nu-solid``; default 1 and 0.3, normalised like the paper's Fig. 4), the void has zero stiffness.
 The JSON holds C (Voigt), engineering constants, the TI fit with l axis = x (the foam's distinct axis) and its error,
 the isotropic fit, iterations and residuals per load case, timings, every input and the software versions; the same
@@ -30,6 +31,8 @@ Examples
 ``homogenize --density 0.18 --gamma 0.1 --cells 20 --resolution 64 --seed 1 --out result.json``
 
 ``homogenize --image phases.npy --E-solid 1 --nu-solid 0.3 --out result.json``
+
+``homogenize --density 0.3 --gamma 0.5 --cells 27 --resolution 48 --box equiaxed --distance polyhedral --out w.json``
 
 ``mpirun -n 2 fenicsfoam homogenize --density 0.18 --gamma 0.1 --resolution 384 --out big.json``
 
@@ -68,6 +71,30 @@ HOMOGENIZE_TOL = 1e-4
 HOMOGENIZE_THREADS = 1
 
 
+def _foam_kind_arguments(p: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
+    """``--box`` and ``--distance`` of ``homogenize`` and ``table``: the RVE box and the foam (struts or walls)."""
+    from homogenization import tables
+
+    p.add_argument("--box", choices=("cube", "equiaxed"), default=tables.SweepSettings.box,
+                   help="RVE box: the unit cube or (gamma, 1, 1); --resolution counts voxels along y and z")
+    p.add_argument("--distance", choices=tables.FOAMS, default=tables.SweepSettings.distance,
+                   help="foam: euclidean struts or polyhedral walls")
+
+
+def _check_foam_grid(box: str, resolution: int, gammas, gamma_option: str) -> None:
+    """Check that every ``γ N`` of an equiaxed box is an integer ≥ 2; else an :class:`InputError` naming them.
+
+    The box ``(γ, 1, 1)`` has cubic voxels only then (:meth:`meshes.foam.VoronoiFoam.grid_shape`).
+    """
+    if box != "equiaxed":
+        return
+    bad = [g for g in gammas if abs(g * resolution - round(g * resolution)) > 1e-6 or round(g * resolution) < 2]
+    if bad:
+        raise InputError(f"--box equiaxed has gamma × N voxels along x, which must be an integer >= 2: --resolution "
+                         f"{resolution} with {gamma_option} {' '.join(f'{g:g}' for g in bad)} gives "
+                         f"{', '.join(f'{g * resolution:g}' for g in bad)}; choose --resolution a multiple of 1/gamma")
+
+
 def _homogenize_arguments(p: argparse.ArgumentParser) -> None:
     from homogenization.fft import DISCRETIZATIONS, SCHEMES
 
@@ -80,8 +107,9 @@ def _homogenize_arguments(p: argparse.ArgumentParser) -> None:
     foam.add_argument("--cells", type=int, default=20, help="number of Voronoi cells (>= 2)")
     foam.add_argument("--seed", type=int, default=0, help="random seed (>= 0)")
     foam.add_argument("--resolution", type=int, default=64, help="voxels per side N (>= 8)")
+    _foam_kind_arguments(foam)
     foam.add_argument("--stl", type=nonempty_path, default=None,
-                      help="also write the foam's surface (solid ∩ unit cube) as a binary STL, at --resolution")
+                      help="also write the foam's surface (solid ∩ box) as a binary STL, at --resolution")
     mat = p.add_argument_group("solid material")
     mat.add_argument("--E-solid", dest="E_solid", type=float, default=1.0, help="Young's modulus of the solid")
     mat.add_argument("--nu-solid", dest="nu_solid", type=float, default=0.3, help="Poisson's ratio of the solid")
@@ -171,8 +199,12 @@ def _homogenize_check(parser: argparse.ArgumentParser, args: argparse.Namespace)
         need(args.cells >= 2, f"--cells must be an integer >= 2, got {args.cells}")
         need(args.seed >= 0, f"--seed must be an integer >= 0, got {args.seed}")
         need(args.resolution >= 8, f"--resolution must be an integer >= 8, got {args.resolution}")
+        _check_foam_grid(args.box, args.resolution, [args.gamma], "--gamma")
     else:
         need(args.stl is None, "--stl writes a foam's surface: it needs --density (not --image)")
+        from homogenization.tables import SweepSettings
+        need((args.box, args.distance) == (SweepSettings.box, SweepSettings.distance),
+             f"--box {args.box} --distance {args.distance} describe a foam: they need --density (not --image)")
     need(math.isfinite(args.E_solid) and args.E_solid > 0, f"--E-solid must be > 0 and finite, got {args.E_solid}")
     need(math.isfinite(args.nu_solid) and -1.0 < args.nu_solid < 0.5,
          f"--nu-solid must be in (-1, 0.5), got {args.nu_solid}")
@@ -216,18 +248,32 @@ def _build_foam(args: argparse.Namespace):
     """The ``VoronoiFoam`` of the arguments; a foam the library refuses is an :class:`InputError` naming them."""
     from meshes.foam import VoronoiFoam
 
-    given = f"--density {args.density:g} --gamma {args.gamma:g} --cells {args.cells} --seed {args.seed}"
+    given = (f"--density {args.density:g} --gamma {args.gamma:g} --cells {args.cells} --seed {args.seed} "
+             f"--box {args.box} --distance {args.distance}")
     try:
-        return VoronoiFoam(n_cells=args.cells, density=args.density, gamma=args.gamma, seed=args.seed)
+        return VoronoiFoam(n_cells=args.cells, density=args.density, gamma=args.gamma, seed=args.seed,
+                           box=None if args.box == "cube" else args.box, distance=args.distance)
     except InputError as exc:
         raise InputError(f"{given}: {exc}") from exc
 
 
-def _slab(args: argparse.Namespace, comm) -> tuple[np.ndarray, VoronoiFoam | None]:
-    """The planes of the phase image (int8) that this rank holds and, on rank 0 of a foam run, the foam.
+def _voxelize(args: argparse.Namespace) -> tuple[VoronoiFoam, np.ndarray]:
+    """The foam of the arguments and its phase image (int8, cubic voxels); an :class:`InputError` if it is void."""
+    import numpy as np
 
-    The foam is voxelized on rank 0 and its planes are scattered; an ``--image`` is memory-mapped by every rank,
-    which reads its own planes only.
+    foam = _build_foam(args)
+    image = foam.voxelize(args.resolution).astype(np.int8)
+    if not image.any():
+        raise InputError(f"--resolution {args.resolution}: no voxel centre lies in the solid (half-thickness "
+                         f"{foam.radius:.3g}); use a finer --resolution")
+    return foam, image
+
+
+def _slab(args: argparse.Namespace, comm) -> tuple[np.ndarray, VoronoiFoam | None, tuple | None]:
+    """The planes of the phase image (int8) that this rank holds, on rank 0 of a foam run the foam, and the box.
+
+    The foam is voxelized on rank 0 and its planes are scattered, its box lengths broadcast (None: an ``--image``,
+    the unit cube); an ``--image`` is memory-mapped by every rank, which reads its own planes only.
     """
     import numpy as np
 
@@ -237,22 +283,14 @@ def _slab(args: argparse.Namespace, comm) -> tuple[np.ndarray, VoronoiFoam | Non
     if args.image is not None:
         start, stop = slab_planes(args.image_shape[0], comm)
         mapped = np.load(args.image, mmap_mode="r", allow_pickle=False)
-        return np.asarray(mapped[start:stop]).astype(np.int8), None
-
-    def voxelize():
-        foam = _build_foam(args)
-        image = foam.voxelize(args.resolution).astype(np.int8)
-        if not image.any():
-            raise InputError(f"--resolution {args.resolution}: no voxel centre lies in the struts (radius "
-                             f"{foam.radius:.3g}); use a finer --resolution")
-        return foam, image
-    foam, image = on_rank0(comm, voxelize, "voxelizing the foam") or (None, None)
+        return np.asarray(mapped[start:stop]).astype(np.int8), None, None
+    foam, image = on_rank0(comm, lambda: _voxelize(args), "voxelizing the foam") or (None, None)
     shape = comm.bcast(None if image is None else image.shape)
     start, stop = slab_planes(shape[0], comm)
     counts = [int(np.diff(slab_planes(shape[0], comm, rank))[0]) * shape[1] * shape[2] for rank in range(comm.size)]
     local = np.empty((stop - start, *shape[1:]), dtype=np.int8)
     comm.Scatterv((image, counts) if comm.rank == 0 else None, local, root=0)
-    return local, foam
+    return local, foam, comm.bcast(None if foam is None else tuple(foam.box.tolist()))
 
 
 def _versions() -> dict[str, str]:
@@ -295,22 +333,19 @@ def _homogenize(args: argparse.Namespace) -> int:
 
     comm = getattr(args, "comm", None)
     root = comm is None or comm.rank == 0
-    phases, foam = args.phases, None
+    phases, foam, box = args.phases, None, None
     if comm is not None:
-        phases, foam = _slab(args, comm)
+        phases, foam, box = _slab(args, comm)
     elif phases is None:
-        foam = _build_foam(args)
-        phases = foam.voxelize(args.resolution).astype(np.int8)
-        if not phases.any():
-            raise InputError(f"--resolution {args.resolution}: no voxel centre lies in the struts (radius "
-                             f"{foam.radius:.3g}); use a finer --resolution")
+        foam, phases = _voxelize(args)
+        box = tuple(foam.box.tolist())
     materials = [np.zeros((6, 6)), isotropic_voigt(args.E_solid, args.nu_solid)]
     with tqdm(total=6, unit="case", desc="homogenize", disable=None if root else True) as bar:
         def progress(case, iteration, residual):
             if case > bar.n:
                 bar.update(case - bar.n)
             bar.set_postfix(iteration=iteration, residual=f"{residual:.2e}", refresh=False)
-        result = homogenize_fft(phases, materials, scheme=args.scheme, discretization=args.discretization,
+        result = homogenize_fft(phases, materials, scheme=args.scheme, discretization=args.discretization, box=box,
                                 tol=args.tol, maxiter=args.maxiter, threads=args.threads, callback=progress,
                                 comm=comm, slab=comm is not None)
         bar.update(6 - bar.n)
@@ -321,7 +356,8 @@ def _homogenize(args: argparse.Namespace) -> int:
                                f"C = {np.array2string(result.C, precision=4)}") from exc
     if not root:
         return 0
-    unused = ("image",) if args.image is None else ("density", "gamma", "cells", "seed", "resolution", "stl")
+    unused = ("image",) if args.image is None else ("density", "gamma", "cells", "seed", "resolution", "box",
+                                                      "distance", "stl")
     inputs = {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()
               if k in _HOMOGENIZE_INPUTS and k not in unused}
     solid = float(sum(f for p, f in result.info["volume_fractions"].items() if p != "0"))  # all ranks' voxels
@@ -349,8 +385,8 @@ _TABLE_DESCRIPTION = (
     "foam_table_samples.csv, foam_table.csv (mean and std over seeds) and foam_table_provenance.json into --out.")
 
 #: The inputs recorded in the JSON: the arguments of the command (not the dispatcher's).
-_HOMOGENIZE_INPUTS = ("density", "image", "gamma", "cells", "seed", "resolution", "stl", "E_solid", "nu_solid",
-                      "scheme", "discretization", "tol", "maxiter", "threads", "out")
+_HOMOGENIZE_INPUTS = ("density", "image", "gamma", "cells", "seed", "resolution", "box", "distance", "stl",
+                      "E_solid", "nu_solid", "scheme", "discretization", "tol", "maxiter", "threads", "out")
 
 HOMOGENIZE = Command("homogenize", "FFT homogenization of a foam (--density) or a phase image (--image) to JSON",
                      _homogenize_arguments, _homogenize, description=_HOMOGENIZE_DESCRIPTION,
@@ -371,10 +407,7 @@ def _table_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cells", type=int, default=tables.SweepSettings.n_cells, help="Voronoi cells per RVE")
     p.add_argument("--resolution", type=int, default=tables.SweepSettings.resolution, help="voxels per side N")
     p.add_argument("--tol", type=float, default=tables.SweepSettings.tol, help="FFT (CG) tolerance")
-    p.add_argument("--box", choices=("cube", "equiaxed"), default=tables.SweepSettings.box,
-                   help="RVE box: the unit cube or (gamma, 1, 1); --resolution counts voxels along y and z")
-    p.add_argument("--distance", choices=tables.FOAMS, default=tables.SweepSettings.distance,
-                   help="foam: euclidean struts or polyhedral walls")
+    _foam_kind_arguments(p)
     p.add_argument("--maxiter", type=int, default=None, help="CG iterations per load case (default: solver's)")
     p.add_argument("--threads", type=int, default=None,
                    help="FFTW threads per rank; None: CPUs / ranks (more than the CPUs: a warning)")
@@ -402,6 +435,7 @@ def _table_check(parser: argparse.ArgumentParser, args: argparse.Namespace) -> N
             parser.error(f"{option}: {exc}")
     if args.maxiter is not None and args.maxiter < 1:
         parser.error(f"--maxiter must be >= 1, got {args.maxiter}")
+    _check_foam_grid(args.box, args.resolution, args.gammas, "--gammas")
     args.settings = tables.SweepSettings(n_cells=args.cells, resolution=args.resolution, tol=args.tol, box=args.box,
                                          distance=args.distance, maxiter=args.maxiter)
     check_output_dir(args.out, "--out")

@@ -118,6 +118,8 @@ def test_usage_errors_exit_2_and_help_lists_the_exit_codes(capsys):
     with pytest.raises(SystemExit) as info:
         main(["table", "--out", "x", "--densities", "1.5"])
     assert info.value.code == 2 and "--densities must lie in (0, 1), got [1.5]" in capsys.readouterr().err
+    assert main(["table", "--out", "x", "--box", "equiaxed", "--gammas", "1", "0.3", "--resolution", "16"]) == 2
+    assert "--resolution 16 with --gammas 0.3 gives 4.8" in capsys.readouterr().err  # before any sample is run
     with pytest.raises(SystemExit) as info:
         main(["--help"])
     assert info.value.code == 0

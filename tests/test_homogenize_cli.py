@@ -159,6 +159,53 @@ def test_foam_path(tmp_path):
     assert data["solid_fraction"] == pytest.approx(image.mean())
 
 
+#: A tiny polyhedral wall foam in its equiaxed box (0.5, 1, 1): 8 × 16 × 16 voxels, walls about two voxels thick.
+WALL_FOAM = dict(density=0.5, gamma=0.5, cells=4, seed=1, resolution=16)
+
+
+def wall_foam_stiffness(tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """The library's C of :data:`WALL_FOAM` homogenized in its box, and its phase image."""
+    from meshes.foam import VoronoiFoam
+
+    foam = VoronoiFoam(WALL_FOAM["cells"], WALL_FOAM["density"], WALL_FOAM["gamma"], seed=WALL_FOAM["seed"],
+                       box="equiaxed", distance="polyhedral")
+    image = foam.voxelize(WALL_FOAM["resolution"]).astype(np.int8)
+    C = homogenize_fft(image, [np.zeros((6, 6)), isotropic_voigt(1.0, 0.3)], tol=tol, threads=1,
+                       box=tuple(foam.box)).C
+    return C, image
+
+
+def test_equiaxed_polyhedral_foam_path(tmp_path):
+    """--box equiaxed --distance polyhedral homogenizes the wall foam in the box (γ, 1, 1) with cubic voxels: the
+    JSON's C is the library's, the box and the foam are recorded."""
+    out = tmp_path / "walls.json"
+    assert main([f"--{k}={v}" for k, v in WALL_FOAM.items()]
+                + ["--box", "equiaxed", "--distance", "polyhedral", "--tol", "1e-6", "--out", str(out)]) == 0
+    data = json.loads(out.read_text())
+    expected, image = wall_foam_stiffness(tol=1e-6)
+    assert image.shape == (8, 16, 16)
+    assert np.abs(np.array(data["C"]) - expected).max() < 1e-10 * np.abs(expected).max()
+    assert data["info"]["box"] == [0.5, 1.0, 1.0]
+    assert data["inputs"]["box"] == "equiaxed" and data["inputs"]["distance"] == "polyhedral"
+    assert data["solid_fraction"] == pytest.approx(image.mean())
+
+
+@pytest.mark.parametrize("extra,match", [
+    (["--box", "long"], r"argument --box: invalid choice: 'long' \(choose from 'cube', 'equiaxed'\)"),
+    (["--distance", "manhattan"], r"argument --distance: invalid choice: 'manhattan'"),
+    (["--box", "equiaxed", "--gamma", "0.3", "--resolution", "16"],
+     r"--resolution 16 with --gamma 0.3 gives 4.8"),
+])
+def test_bad_box_and_distance_exit_2(capsys, extra, match):
+    err = run_error(["--density", "0.3", "--cells", "4", *extra], capsys)
+    assert re.search(match, err), err
+
+
+def test_box_and_distance_need_a_foam(image_file, capsys):
+    err = run_error(["--image", str(image_file), "--distance", "polyhedral"], capsys)
+    assert "--box cube --distance polyhedral describe a foam: they need --density" in err
+
+
 @pytest.mark.mpi
 def test_distributed_run_matches_serial(tmp_path):
     """Under mpirun -n K the one RVE is split over the ranks (foam voxelized on rank 0 and scattered, image
@@ -208,3 +255,21 @@ def test_distributed_bad_arguments_stop_every_rank(tmp_path):
     #                                                      percolate: C is not positive definite, on every rank
     comm.Barrier()
     assert sorted(p.name for p in folder.iterdir() if not p.name.endswith(".json")) == []
+
+
+@pytest.mark.mpi
+def test_distributed_equiaxed_polyhedral_foam_matches_serial(tmp_path):
+    """Under mpirun the wall foam of the equiaxed box is voxelized on rank 0, its box sent to every rank: C equals
+    the serial solve of the same image in the same box."""
+    from mpi4py import MPI
+
+    comm = MPI.COMM_WORLD
+    out = Path(comm.bcast(str(tmp_path))) / "walls.json"
+    assert main([f"--{k}={v}" for k, v in WALL_FOAM.items()]
+                + ["--box", "equiaxed", "--distance", "polyhedral", "--tol", "1e-6", "--out", str(out)]) == 0
+    comm.Barrier()
+    data = json.loads(out.read_text())
+    assert data["info"]["box"] == [0.5, 1.0, 1.0] and data["info"].get("ranks", 1) == comm.Get_size()
+    if comm.Get_rank() == 0:
+        expected, _ = wall_foam_stiffness(tol=1e-6)
+        assert np.abs(np.array(data["C"]) - expected).max() < 1e-8 * np.abs(expected).max()
