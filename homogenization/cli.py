@@ -32,7 +32,7 @@ Examples
 
 ``homogenize --image phases.npy --E-solid 1 --nu-solid 0.3 --out result.json``
 
-``homogenize --density 0.3 --gamma 0.5 --cells 27 --resolution 48 --box equiaxed --distance polyhedral --out w.json``
+``homogenize --density 0.4 --gamma 0.5 --cells 4 --seed 1 --resolution 24 --box equiaxed --distance polyhedral``
 
 ``mpirun -n 2 fenicsfoam homogenize --density 0.18 --gamma 0.1 --resolution 384 --out big.json``
 
