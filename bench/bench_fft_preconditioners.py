@@ -404,6 +404,18 @@ def deflated_pcg(op, b, tol, maxiter, space=None, balanced=False, harvest=None):
         rz = rz_new
 
 
+def solve_each(rhs, solve):
+    """The load cases one after the other: ``solve(case, b) -> (x, iterations, residual)`` for each right-hand side;
+    returns the solutions, the iterations per case and the largest final residual."""
+    X, iterations, worst = [], [], 0.0
+    for case, b in enumerate(rhs):
+        x, it, res = solve(case, b)
+        X.append(x)
+        iterations.append(it)
+        worst = max(worst, res)
+    return X, iterations, worst
+
+
 def reuse(args, problem):
     """The rows of ``--reuse``: total K applications for the 6 load cases, one after another (``sequential``: what
     ``pcg`` does), together (``block``), and with the eigenpairs harvested in the earlier solves deflating the
@@ -425,42 +437,41 @@ def reuse(args, problem):
               flush=True)
         return reference
 
+    def harvesting(method):
+        """``solve`` of :func:`solve_each` that deflates each case by the space harvested from the earlier ones."""
+        def solve(case, b):
+            nonlocal space
+            harvest = Harvest(args.window, args.nev) if method != "sequential" else None
+            x, it, res = deflated_pcg(op, b, args.tol, args.maxiter, space, method == "balanced", harvest)
+            if harvest is not None:
+                if len(harvest.V) > args.nev:
+                    harvest.restart(eigcg=False)
+                print(f"  {method}, load case {case}: {it} iterations, smallest harvested Ritz values "
+                      f"{', '.join(f'{t:.2e}' for t in harvest.theta[:3])}", flush=True)
+                U, KU = np.array(harvest.V), np.array(harvest.KV)
+                if space is not None:
+                    U, KU = np.concatenate([space[0], U]), np.concatenate([space[1], KU])
+                space = k_orthonormalize(U, KU, 1e-10)
+            return x, it, res
+        return solve
+
     for method in args.reuse:
         op.matvecs = op.greens = 0
         t0 = time.process_time()
-        iterations, worst, space = [], 0.0, None
+        space = None
         if method == "block":
             X, it, res = block_pcg(op, rhs, args.tol, args.maxiter)
             iterations, worst, stored = [it], float(res.max()), 5 * 6  # X, R, Z, P, KP of 6 columns
         else:
-            X = []
-            for b in rhs:
-                harvest = Harvest(args.window, args.nev) if method != "sequential" else None
-                x, it, res = deflated_pcg(op, b, args.tol, args.maxiter, space, method == "balanced", harvest)
-                X.append(x)
-                iterations.append(it)
-                worst = max(worst, res)
-                if harvest is not None:
-                    if len(harvest.V) > args.nev:
-                        harvest.restart(eigcg=False)
-                    print(f"  {method}, load case {len(X) - 1}: {it} iterations, smallest harvested Ritz values "
-                          f"{', '.join(f'{t:.2e}' for t in harvest.theta[:3])}", flush=True)
-                    U, KU = np.array(harvest.V), np.array(harvest.KV)
-                    if space is not None:
-                        U, KU = np.concatenate([space[0], U]), np.concatenate([space[1], KU])
-                    space = k_orthonormalize(U, KU, 1e-10)
+            X, iterations, worst = solve_each(rhs, harvesting(method))
             stored = 5 if method == "sequential" else 5 + 3 * args.window + 2 * len(space[0])
         cpu = time.process_time() - t0
         reference = record(method, X, iterations, worst, cpu, stored, reference)
         if method == "balanced":  # a bound: the six cases again, deflated by everything harvested from all six
             op.matvecs = op.greens = 0
             t0 = time.process_time()
-            X, iterations, worst = [], [], 0.0
-            for b in rhs:
-                x, it, res = deflated_pcg(op, b, args.tol, args.maxiter, space, True)
-                X.append(x)
-                iterations.append(it)
-                worst = max(worst, res)
+            X, iterations, worst = solve_each(
+                rhs, lambda case, b, space=space: deflated_pcg(op, b, args.tol, args.maxiter, space, True))
             record("balanced-again", X, iterations, worst, time.process_time() - t0, stored, reference)
     return rows
 
