@@ -48,6 +48,18 @@ MUTATIONS: tuple[Mutation, ...] = (
         "Willot's rotated wave vector missing a cosine factor in k_1",
         targets=("tests/test_fft.py",)),
     Mutation(
+        "pcg-ghost-wrap", "homogenization/_nodal.py",
+        "array[..., 0:1, :, :] = array[..., last, :, :]",
+        "array[..., 0:1, :, :] = array[..., first, :, :]",
+        "pcg's nodal operator: the leading ghost plane wraps to the first plane instead of the last (x not periodic)",
+        targets=("tests/test_fft.py",)),
+    Mutation(
+        "pcg-strain-h-index", "homogenization/_nodal.py",
+        "g[:, 1] = (roll(a3, -1, 2) - a3) / ws.h[1]",
+        "g[:, 1] = (roll(a3, -1, 2) - a3) / ws.h[2]",
+        "pcg's voxel strain: ∂u/∂y divided by the voxel size along z instead of y",
+        targets=("tests/test_fft.py",)),
+    Mutation(
         "voxel-centres", "meshes/foam.py",
         "c = [(np.arange(n) + 0.5) / n * length for n, length in zip(shape, box)]",
         "c = [np.arange(n) / (n - 1) * length for n, length in zip(shape, box)]",
