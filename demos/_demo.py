@@ -10,7 +10,6 @@ Table I.
 from __future__ import annotations
 
 import argparse
-import sys
 import tomllib
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -18,6 +17,7 @@ from typing import Any
 
 from mpi4py import MPI
 
+from foambase.cli import report_checks as report
 from foambase.logs import setup_logging
 
 #: The shipped scene files.
@@ -56,15 +56,6 @@ def print0(*args: Any, comm: MPI.Comm = MPI.COMM_WORLD, **kwargs: Any) -> None:
     """``print`` on rank 0 only."""
     if comm.rank == 0:
         print(*args, **kwargs, flush=True)
-
-
-def report(failures: list[str], comm: MPI.Comm = MPI.COMM_WORLD) -> int:
-    """Print the failed checks (rank 0) and return the exit status every rank agrees on: 0 if none, else 1."""
-    failures = comm.bcast(failures, root=0)
-    for failure in failures:
-        print0(f"CHECK FAILED: {failure}", comm=comm, file=sys.stderr)
-    print0("all checks passed" if not failures else f"{len(failures)} check(s) failed", comm=comm)
-    return 1 if failures else 0
 
 
 def run_and_check(run: Callable[[Path, bool, MPI.Comm], dict], check: Callable[[dict], list[str]],

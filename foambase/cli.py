@@ -41,7 +41,8 @@ from foambase.logs import launcher_rank, setup_logging
 from foambase.signals import interruptible
 from foambase.threads import single_threaded_blas_by_default
 
-__all__ = ["EPILOG", "Command", "build_parser", "dispatch", "main", "main_single", "nonempty_path", "resolve"]
+__all__ = ["EPILOG", "Command", "build_parser", "dispatch", "main", "main_single", "nonempty_path", "report_checks",
+           "resolve"]
 
 #: The exit status of a Ctrl-C (128 + SIGINT).
 EXIT_INTERRUPTED = 130
@@ -158,6 +159,25 @@ def main(prog: str, description: str, registry: Sequence[str], argv: Sequence[st
     single_threaded_blas_by_default()
     parser = build_parser(prog, description, [resolve(spec) for spec in registry])
     return dispatch(parser, sys.argv[1:] if argv is None else argv)
+
+
+def report_checks(failures: Sequence[str], comm=None) -> int:
+    """The exit status of a script's own checks (demos, studies), the same on every rank: 0 if none failed, else 1.
+
+    Rank 0's ``failures`` are broadcast (a check computed on rank 0 only passes ``[]`` elsewhere); rank 0 prints
+    each as ``CHECK FAILED: ...`` on stderr, then ``all checks passed`` or ``N check(s) failed`` on stdout.
+    ``comm`` defaults to ``MPI.COMM_WORLD``.
+    """
+    if comm is None:
+        from mpi4py import MPI
+
+        comm = MPI.COMM_WORLD
+    failures = comm.bcast(list(failures), root=0)
+    if comm.rank == 0:
+        for failure in failures:
+            print(f"CHECK FAILED: {failure}", file=sys.stderr, flush=True)
+        print("all checks passed" if not failures else f"{len(failures)} check(s) failed", flush=True)
+    return 1 if failures else 0
 
 
 def main_single(command: Command, prog: str, argv: Sequence[str] | None = None) -> int:

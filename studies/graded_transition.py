@@ -18,6 +18,7 @@ from pathlib import Path
 from mpi4py import MPI
 
 from fenicsfoam.scene import parse_scene, run_scene
+from foambase.cli import report_checks
 from foambase.files import write_text_atomic
 from foambase.logs import setup_logging
 
@@ -67,10 +68,7 @@ def main(out: Path, ci: bool) -> int:
         out.mkdir(parents=True, exist_ok=True)
         lines = [",".join(rows[0])] + [",".join(str(r[k]) for k in rows[0]) for r in rows]
         write_text_atomic(out / "graded_transition.csv", "\n".join(lines) + "\n")
-        for failure in failures:
-            print(f"CHECK FAILED: {failure}", file=sys.stderr)
-        print("all checks passed" if not failures else f"{len(failures)} check(s) failed")
-    return 1 if comm.bcast(bool(failures)) else 0
+    return report_checks(failures, comm)
 
 
 if __name__ == "__main__":

@@ -33,6 +33,7 @@ from mpi4py import MPI
 
 from fenicsfoam.scene import run_scene
 from fenicsfoam.solver import ConvergenceError
+from foambase.cli import report_checks
 from foambase.logs import setup_logging
 
 SCENES = Path(__file__).resolve().parents[1] / "demos" / "scenes"
@@ -171,10 +172,7 @@ def main(out: Path, degrees: list[int], step: float, ci: bool = False) -> int:
             plot(rows, out / f"{design}.png", xlabel, title)
     if comm.rank == 0:
         print(f"CSV and PNG in {out}")
-        for failure in failures:
-            print(f"CHECK FAILED: {failure}", file=sys.stderr)
-        print("all checks passed" if not failures else f"{len(failures)} check(s) failed")
-    return 1 if failures else 0
+    return report_checks(failures, comm)
 
 
 if __name__ == "__main__":

@@ -68,6 +68,7 @@ from fenicsfoam.materials import TransverseIsotropic, foam_material
 from fenicsfoam.probes import CenterHeight, CenterRotation
 from fenicsfoam.scene import load_scene, spiral_directions
 from fenicsfoam.solver import ConvergenceError, ElasticityProblem, LoadStep
+from foambase.cli import report_checks
 from foambase.logs import setup_logging
 from meshes.tripod import ARM, ARM_END, CENTRE, PAPER_H, RING, TripodGeometry, make_tripod
 
@@ -340,12 +341,7 @@ def main(out: Path, quick: bool, ci: bool = False) -> int:
         write_csv(rows, out / "tripod_twist.csv")
         print(table(rows))
         print(f"CSV: {out / 'tripod_twist.csv'}")
-    failures = comm.bcast(check(rows) if comm.rank == 0 else None, root=0)
-    if comm.rank == 0:
-        for failure in failures:
-            print(f"CHECK FAILED: {failure}", file=sys.stderr)
-        print("all checks passed" if not failures else f"{len(failures)} check(s) failed")
-    return 1 if failures else 0
+    return report_checks(check(rows) if comm.rank == 0 else [], comm)
 
 
 if __name__ == "__main__":
