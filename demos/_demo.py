@@ -1,7 +1,8 @@
 """Shared command line and checks of the demos; a helper module, not a demo itself.
 
 Every demo takes ``--out DIR`` and ``--ci`` (a small, fast size), prints on rank 0 only, checks its result and
-exits with status 1 when a check fails (:func:`parse_args`, :func:`print0`, :func:`report`). The scene demos
+exits with status 1 when a check fails (:func:`parse_args`, :func:`print0`, :func:`report`); a demo that writes a
+JSON summary and pictures ends with :func:`finish`. The scene demos
 (``beams.py``, ``tripod.py``, ``pipeline.py``, ``experiments.py``) also share the reading of the shipped scene files,
 coarsened for ``--ci`` (:func:`load_scene_dict`), their main body (:func:`run_and_check`), the paper's Fig. 6 and
 Table I.
@@ -18,6 +19,7 @@ from typing import Any
 from mpi4py import MPI
 
 from foambase.cli import report_checks as report
+from foambase.files import write_json_atomic
 from foambase.logs import setup_logging
 
 #: The shipped scene files.
@@ -56,6 +58,22 @@ def print0(*args: Any, comm: MPI.Comm = MPI.COMM_WORLD, **kwargs: Any) -> None:
     """``print`` on rank 0 only."""
     if comm.rank == 0:
         print(*args, **kwargs, flush=True)
+
+
+def finish(out: Path, summary_file: str, summary: dict, pictures: dict[str, Callable[[Path], None]],
+           failures: list[str], comm: MPI.Comm = MPI.COMM_WORLD) -> int:
+    """The end of a demo: its outputs, where they are, and the exit status of its checks (:func:`report`).
+
+    Rank 0 creates ``out`` and writes ``summary`` to ``out/summary_file`` (JSON, atomically); then every rank calls
+    each ``pictures[name](out / name)`` (a picture of distributed data gathers it, and saves on rank 0 only).
+    """
+    if comm.rank == 0:
+        out.mkdir(parents=True, exist_ok=True)
+        write_json_atomic(out / summary_file, summary)
+    for name, draw in pictures.items():
+        draw(out / name)
+    print0("outputs: " + ", ".join(f"{out}/{name}" for name in (summary_file, *pictures)), comm=comm)
+    return report(failures, comm)
 
 
 def run_and_check(run: Callable[[Path, bool, MPI.Comm], dict], check: Callable[[dict], list[str]],

@@ -33,12 +33,11 @@ from pathlib import Path
 
 import matplotlib
 import numpy as np
-from _demo import load_scene_dict, parse_args, print0, report
+from _demo import finish, load_scene_dict, parse_args, print0
 from mpi4py import MPI
 
 from fenicsfoam.control import InverseController
 from fenicsfoam.scene import parse_scene, run_scene
-from foambase.files import write_json_atomic
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -96,7 +95,10 @@ def forward_check(scene: dict, row: dict, comm: MPI.Comm) -> dict[str, float]:
     return run_scene(parse_scene(scene), comm=comm).steps[-1].probes
 
 
-def picture(rows: list, path: Path) -> None:
+def picture(rows: list, path: Path, comm: MPI.Comm) -> None:
+    """The horn angles per pose and the path of the tilts (on rank 0; every rank holds the rows)."""
+    if comm.rank != 0:
+        return
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 4))
     servo = np.array([r["servo_deg"] for r in rows])
     for i in range(3):
@@ -133,14 +135,10 @@ def main(out: Path, ci: bool, comm: MPI.Comm = MPI.COMM_WORLD) -> int:
     warm = [r["scene_solves"] for r in rows[1:]]
     if max(warm) >= rows[0]["scene_solves"] + 5:
         failures.append(f"warm-started poses cost {warm} scene solves, the first {rows[0]['scene_solves']}")
-    if comm.rank == 0:
-        out.mkdir(parents=True, exist_ok=True)
-        write_json_atomic(out / "trajectory.json", {"poses": rows, "forward_check": forward})
-        picture(rows, out / "trajectory.png")
     print0(f"plain forward run at pose {rows[-1]['pose']}'s angles: "
            + ", ".join(f"{k} {v:.9g}" for k, v in forward.items()), comm=comm)
-    print0(f"outputs: {out}/trajectory.json, {out}/trajectory.png", comm=comm)
-    return report(failures, comm)
+    return finish(out, "trajectory.json", {"poses": rows, "forward_check": forward},
+                  {"trajectory.png": lambda path: picture(rows, path, comm)}, failures, comm)
 
 
 if __name__ == "__main__":

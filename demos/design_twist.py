@@ -38,13 +38,12 @@ from pathlib import Path
 
 import matplotlib
 import numpy as np
-from _demo import load_scene_dict, parse_args, print0, report
+from _demo import finish, load_scene_dict, parse_args, print0
 from mpi4py import MPI
 
 from fenicsfoam.design import SceneDesign, match_probes, optimize_probe
 from fenicsfoam.orientation import cell_values
 from fenicsfoam.scene import parse_scene, run_scene
-from foambase.files import write_json_atomic
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -193,22 +192,18 @@ def main(out: Path, ci: bool, comm: MPI.Comm = MPI.COMM_WORLD) -> int:
     print0(f"\nequal accuracy (twist within {ACCURACY:g} of {slsqp.objective:.4f} deg, height bound met): "
            f"SLSQP {n_grad} scene solves, COBYLA "
            f"{n_free if n_free is not None else f'not within {cobyla.solves}'} scene solves", comm=comm)
-    if comm.rank == 0:
-        out.mkdir(parents=True, exist_ok=True)
-        summary = {name: {"initial_twist_deg": r.initial_objective, "twist_deg": r.objective,
-                          "height_change_m": r.change, "scene_solves": r.solves,
-                          "parameters": {k: (v.tolist() if isinstance(v, np.ndarray) else v)
-                                         for k, v in r.parameters.items() if k != "orientation"},
-                          "iterates": r.history.iterates}
-                   for name, r in (("SLSQP", slsqp), ("COBYLA", cobyla), ("L-BFGS-B", lbfgs))}
-        summary["equal_accuracy_solves"] = {"SLSQP": n_grad, "COBYLA": n_free}
-        summary["target_twist"] = {"target_deg": TARGET_TWIST, "offset_deg": c["result"].parameters[
-            "orientation.offset_deg"], "plain_run_twist_deg": c["plain_twist_deg"], "scene_solves": c["result"].solves,
-            "evaluations": c["result"].history.evaluations}
-        write_json_atomic(out / "design.json", summary)
-    picture_b(design, out / "orientation_optimised.png")
-    print0(f"outputs: {out}/design.json, {out}/orientation_optimised.png", comm=comm)
-    return report(failures, comm)
+    summary = {name: {"initial_twist_deg": r.initial_objective, "twist_deg": r.objective,
+                      "height_change_m": r.change, "scene_solves": r.solves,
+                      "parameters": {k: (v.tolist() if isinstance(v, np.ndarray) else v)
+                                     for k, v in r.parameters.items() if k != "orientation"},
+                      "iterates": r.history.iterates}
+               for name, r in (("SLSQP", slsqp), ("COBYLA", cobyla), ("L-BFGS-B", lbfgs))}
+    summary["equal_accuracy_solves"] = {"SLSQP": n_grad, "COBYLA": n_free}
+    summary["target_twist"] = {"target_deg": TARGET_TWIST, "offset_deg": c["result"].parameters[
+        "orientation.offset_deg"], "plain_run_twist_deg": c["plain_twist_deg"], "scene_solves": c["result"].solves,
+        "evaluations": c["result"].history.evaluations}
+    return finish(out, "design.json", summary,
+                  {"orientation_optimised.png": lambda path: picture_b(design, path)}, failures, comm)
 
 
 if __name__ == "__main__":
