@@ -65,10 +65,7 @@ class Problem:
 
     def __init__(self, phases, stiffness_mandel):
         self.phases, self.shape = phases, phases.shape
-        ids = np.unique(phases)
-        tables = np.zeros((ids.max() + 1, 6, 6))
-        for p in ids:
-            tables[p] = stiffness_mandel[p] / _nodal.MANDEL[:, None]
+        tables = _nodal.stiffness_tables({int(p): stiffness_mandel[p] for p in np.unique(phases)})
         self.stiffness = stiffness_mandel
         self.ws = _nodal.NodalWorkspace(phases, tables, self.shape, (1.0, 1.0, 1.0), 1, False)
 

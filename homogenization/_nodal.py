@@ -59,11 +59,24 @@ def rotated_tables(n: int, h: float, indices: np.ndarray) -> tuple[np.ndarray, n
     return np.ascontiguousarray(K), np.ascontiguousarray(C)
 
 
+def stiffness_tables(stiffness_mandel: dict[int, np.ndarray]) -> np.ndarray:
+    """The ``tables`` of :class:`NodalWorkspace` from the phases' 6×6 Mandel stiffnesses ``{phase id: C}``.
+
+    ``tables[p]`` maps the Mandel strain to the tensor stress components (the rows of ``C`` divided by
+    :data:`MANDEL`); ids without a stiffness (below the largest) get zeros.
+    """
+    tables = np.zeros((max(stiffness_mandel) + 1, 6, 6))
+    for p, C in stiffness_mandel.items():
+        tables[p] = C / MANDEL[:, None]
+    return tables
+
+
 class NodalWorkspace:
     """Work arrays, FFTs and kernels of the displacement-form CG on the planes ``[i0, i0 + n)`` of this rank.
 
     ``phases`` are the rank's voxel planes (int), ``tables[p]`` the 6×6 map from Mandel strain to tensor stress of
-    phase ``p``. ``comm`` (mpi4py communicator or None) distributes the planes; the caller checks the sizes.
+    phase ``p`` (:func:`stiffness_tables`). ``comm`` (mpi4py communicator or None) distributes the planes; the
+    caller checks the sizes.
     """
 
     def __init__(self, phases: np.ndarray, tables: np.ndarray, shape: tuple[int, int, int],

@@ -886,9 +886,7 @@ def _make_workspace(run: _Run):
     if run.scheme != "pcg":
         return _Workspace(run.phases, run.stiffness, run.discretization, run.threads, box=run.box,
                           n_vectors={"cg": 2 + run.keep_iterate, "basic": 1}[run.scheme])
-    tables = np.zeros((max(run.counts) + 1, 6, 6))
-    for p in run.counts:
-        tables[p] = run.stiffness[p] / _MANDEL[:, None]  # Mandel strain → tensor stress
+    tables = _nodal.stiffness_tables({p: run.stiffness[p] for p in run.counts})
     ws = _nodal.NodalWorkspace(run.phases, tables, run.shape, run.box, run.threads, run.keep_iterate,
                                comm=run.comm, i0=run.i0)
     ws.fractions = {p: c / ws.size for p, c in run.counts.items()}

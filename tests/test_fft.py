@@ -657,8 +657,7 @@ def test_pcg_stencil_is_the_assembled_hexahedron_stiffness():
         cols += np.tile(dofs, 24).tolist()
         vals += ke.ravel().tolist()
     K = sparse.coo_matrix((vals, (rows, cols)), shape=(3 * img.size,) * 2).tocsr()
-    tables = np.array([materials[p] / _nodal.MANDEL[:, None] for p in range(3)])
-    ws = _nodal.NodalWorkspace(img, tables, shape, box, 1, False)
+    ws = _nodal.NodalWorkspace(img, _nodal.stiffness_tables(materials), shape, box, 1, False)
     u = np.random.default_rng(5).random((3,) + shape)
     ws.p[:, 1:-1] = u
     ws.fill_ghosts(ws.p)
