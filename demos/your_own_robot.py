@@ -158,6 +158,18 @@ def support(result) -> np.ndarray:
     return np.array([0.0, 0.0, 9.81 * result.materials["finger"]["rho"] * VOLUME])
 
 
+def unbalanced(name: str, result, supports: tuple[str, ...]) -> list[str]:
+    """The steps at which the reactions of the ``supports`` (groups) do not carry the weight to ``BALANCE_RTOL``."""
+    w = support(result)
+    failures = []
+    for s in result.steps:
+        total = sum(np.array(s.probes[f"reaction_force:{group}"]) for group in supports)
+        if np.linalg.norm(total - w) > BALANCE_RTOL * np.linalg.norm(w):
+            failures.append(f"{name} {s.label}: {' + '.join(supports)} carry {total.tolist()} N, not the weight "
+                            f"{w.tolist()} N")
+    return failures
+
+
 def run_pneumatic(out: Path, ci: bool, comm) -> tuple:
     msh = out / "finger.msh"
     if comm.rank == 0:
@@ -207,12 +219,7 @@ def check(pneumatic, solution, cable, blocked) -> list[str]:
     tip_z = [s.probes["displacement:tip"][2] for s in pneumatic.steps]
     if not (np.all(np.diff(volumes) > 0) and np.all(np.diff(tip_z) < 0)):
         failures.append(f"pneumatic: volumes {volumes} m³ should grow and tip z {tip_z} m fall with the pressure")
-    w = support(pneumatic)
-    for s in pneumatic.steps:
-        imbalance = np.linalg.norm(np.array(s.probes["reaction_force:base"]) - w)
-        if imbalance > BALANCE_RTOL * np.linalg.norm(w):
-            failures.append(f"pneumatic {s.label}: the clamp carries {s.probes['reaction_force:base']} N, not the "
-                            f"weight {w.tolist()} N")
+    failures += unbalanced("pneumatic", pneumatic, ("base",))
     tips = [np.linalg.norm(s.probes["displacement:tip"]) for s in cable.steps]
     if not np.all(np.diff(tips) > 0):
         failures.append(f"cable: tip displacements {tips} m should grow with the tension")
@@ -225,11 +232,7 @@ def check(pneumatic, solution, cable, blocked) -> list[str]:
     pressing = [s.probes["reaction_force:pad"][2] for s in blocked.steps]  # the finger presses down with R_z
     if not np.all(np.diff(pressing) > 0):
         failures.append(f"blocked: the finger's force on the load cell {pressing} N should grow with the pressure")
-    w = support(blocked)
-    for s in blocked.steps:
-        total = np.array(s.probes["reaction_force:base"]) + np.array(s.probes["reaction_force:pad"])
-        if np.linalg.norm(total - w) > BALANCE_RTOL * np.linalg.norm(w):
-            failures.append(f"blocked {s.label}: base + pad carry {total.tolist()} N, not the weight {w.tolist()} N")
+    failures += unbalanced("blocked", blocked, ("base", "pad"))
     if solution.labels != tuple(s.label for s in pneumatic.steps):
         failures.append(f"solution.npz has steps {solution.labels}")
     base = np.isclose(solution.points[:, 0], 0.0)
@@ -238,20 +241,21 @@ def check(pneumatic, solution, cable, blocked) -> list[str]:
     return failures
 
 
+def tip_rows(result, row) -> list[str]:
+    """One line per step: its label, then ``row(step, tip displacement (m), tip rotation (deg))``."""
+    return [f"{s.label:>8s} {row(s, s.probes['displacement:tip'], s.probes['rotation:tip'])}" for s in result.steps]
+
+
 def table(pneumatic, cable, blocked) -> str:
     lines = ["pneumatic finger (gmsh file): pressure–volume and pressure–displacement",
              f"{'step':>8s} {'volume (cm3)':>12s} {'tip x (mm)':>10s} {'tip z (mm)':>10s} {'tip rot y (deg)':>15s}"]
-    for s in pneumatic.steps:
-        d, r = s.probes["displacement:tip"], s.probes["rotation:tip"]
-        lines.append(f"{s.label:>8s} {1e6 * s.probes['volume:chamber']:12.3f} {1e3 * d[0]:10.2f} {1e3 * d[2]:10.2f} "
-                     f"{r[1]:15.2f}")
+    lines += tip_rows(pneumatic, lambda s, d, r: f"{1e6 * s.probes['volume:chamber']:12.3f} {1e3 * d[0]:10.2f} "
+                                                 f"{1e3 * d[2]:10.2f} {r[1]:15.2f}")
     lines += ["cable-driven TI finger: force–displacement, and the twist the oblique l axis couples",
               f"{'step':>8s} {'tip x (mm)':>10s} {'tip y (mm)':>10s} {'tip z (mm)':>10s} {'rot x (deg)':>11s} "
               f"{'rot y (deg)':>11s} {'rot z (deg)':>11s}"]
-    for s in cable.steps:
-        d, r = s.probes["displacement:tip"], s.probes["rotation:tip"]
-        lines.append(f"{s.label:>8s} {1e3 * d[0]:10.2f} {1e3 * d[1]:10.2f} {1e3 * d[2]:10.2f} {r[0]:11.2f} "
-                     f"{r[1]:11.2f} {r[2]:11.2f}")
+    lines += tip_rows(cable, lambda s, d, r: f"{1e3 * d[0]:10.2f} {1e3 * d[1]:10.2f} {1e3 * d[2]:10.2f} "
+                                             f"{r[0]:11.2f} {r[1]:11.2f} {r[2]:11.2f}")
     lines += ["blocked force: a load cell under the tip; the finger presses down on it with reaction_force:pad z",
               f"{'step':>8s} {'pressing down (N)':>17s} {'change from rest (N)':>20s}"]
     rest = blocked.steps[0].probes["reaction_force:pad"][2]
