@@ -35,6 +35,7 @@ import csv
 import hashlib
 import json
 import logging
+import math
 import os
 import re
 import time
@@ -143,6 +144,33 @@ class Sample:
     density: float
     gamma: float
     seed: int
+
+
+def resolution_for_strut(settings: SweepSettings, density: float, gamma: float, voxels: float, *, seed: int = 0,
+                         multiple: int | None = None) -> int:
+    """The smallest grid ``N`` with at least ``voxels`` voxels across the strut (or wall) of one foam.
+
+    "Across" is the diameter ``2 r`` (walls: the width) in voxels, ``2 r N / max(L)``, of the foam
+    ``VoronoiFoam(settings.n_cells, density, gamma, seed, box=settings.box, distance=settings.distance)``.
+    ``N`` is a multiple of ``multiple`` (default: the smallest step that gives cubic voxels in the box, e.g. 10
+    for the equiaxed box at γ = 0.1, 2 at γ = 0.5, 1 at γ = 1) and at least 8.
+    """
+    from meshes.foam import VoronoiFoam
+
+    if not (np.isfinite(voxels) and voxels > 0):
+        raise InputError(f"voxels across the strut must be positive and finite, got {voxels!r}")
+    if multiple is not None and (int(multiple) != multiple or multiple < 1):
+        raise InputError(f"multiple must be a positive integer, got {multiple!r}")
+    foam = VoronoiFoam(settings.n_cells, density, gamma, seed=seed,
+                       box=None if settings.box == "cube" else settings.box, distance=settings.distance)
+    edge = foam.box / foam.box.max()
+    if multiple is None:
+        multiple = next((k for k in range(1, 1001) if np.allclose(k * edge, np.rint(k * edge), atol=1e-9, rtol=0)),
+                        None)
+        if multiple is None:
+            raise InputError(f"the box {foam.box.tolist()} admits no cubic voxels with N ≤ 1000 per edge")
+    width = 2 * foam.radius / foam.box.max()
+    return int(max(8, multiple * math.ceil(voxels / (width * multiple) - 1e-9)))
 
 
 def grid(densities: Iterable[float] = DENSITIES, gammas: Iterable[float] = GAMMAS,

@@ -22,7 +22,6 @@ Run: ``OMP_NUM_THREADS=1 nice -n 10 python studies/equiaxed_table.py --cache out
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 from datetime import UTC, datetime
@@ -31,13 +30,12 @@ from pathlib import Path
 from mpi4py import MPI
 
 from homogenization import tables
-from meshes.foam import VoronoiFoam
 
 
 def resolution_for(n_cells: int, density: float, gamma: float, voxels_per_strut: float) -> int:
     """The smallest multiple of 10 giving ``voxels_per_strut`` voxels across the strut diameter (seed 0)."""
-    foam = VoronoiFoam(n_cells, density, gamma, seed=0, box="equiaxed")
-    return 10 * math.ceil(voxels_per_strut / (2 * foam.radius * 10))
+    settings = tables.SweepSettings(n_cells=n_cells, box="equiaxed")
+    return tables.resolution_for_strut(settings, density, gamma, voxels_per_strut, multiple=10)
 
 
 def main(argv=None) -> int:

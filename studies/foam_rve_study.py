@@ -11,12 +11,18 @@ stopped, and the two studies share the samples they have in common.
     setting) for comparison.
     Prints the seed mean and standard deviation of E1, E2, E3, G23, G13, G12 and of the TI fit per (γ, m).
 ``resolution``
-    One RVE size (``--cells``, default 27 = 3 across) at ``N = v m`` for ``v`` in ``--levels`` (default 20, 30, 40,
-    50 voxels per cell width), γ = 1, 0.5, 0.1. Richardson extrapolation from the three finest levels
-    (``q(h) = q₀ + c h^p``, ``p`` from the three values, see :func:`richardson`) gives the converged estimate and the
-    remaining bias of each level.
+    One RVE size (``--cells``, default 27 = 3 across) at several grids, γ = 1, 0.5, 0.1: ``N = v m`` for ``v`` in
+    ``--levels`` (default 20, 30, 40, 50 voxels per cell width), or with ``--strut-voxels`` the smallest grid per γ
+    with at least that many voxels across the strut diameter of the seed-0 foam
+    (:func:`homogenization.tables.resolution_for_strut`), so that every γ is compared at equal strut resolution.
+    Per constant (E1, E2, E3, G23, ν23, the TI fit's E_t, E_l, G_l, the isotropic E) the Richardson estimate of
+    :func:`homogenization.convergence.richardson` in ``h = 1/(voxels across the strut)``: the observed order from the
+    three finest levels (or the first-order fallback, flagged NOT ASYMPTOTIC with its reason), the extrapolated
+    value, the GCI of the finest level, the orders of every three consecutive levels (whether the order has settled),
+    the bias of every level and, with ``--bias-at``, the model's bias at other strut resolutions (a table's setting).
 
-Writes ``<study>.csv`` (every sample) and ``<study>_summary.csv`` under ``--out``. Run with nice and one thread
+Writes ``<study>.csv`` (every sample) and ``size_summary.csv`` or ``resolution_summary.csv`` (every level and
+constant) and ``resolution_extrapolation.csv`` (every constant) under ``--out``. Run with nice and one thread
 per process, e.g. ``OMP_NUM_THREADS=1 nice -n 10 python studies/foam_rve_study.py size --out out/rve-size``;
 ``mpirun -n 2`` deals the samples to two ranks. ``--ci``: one tiny case of each.
 """
@@ -31,8 +37,12 @@ import numpy as np
 from mpi4py import MPI
 
 from homogenization import tables
+from homogenization.convergence import observed_order, richardson
 
-MODULI = ("E1", "E2", "E3", "G23", "G13", "G12", "ti_E_t", "ti_E_l", "ti_G_l", "ti_error")
+MODULI = ("E1", "E2", "E3", "G23", "G13", "G12", "ti_E_t", "ti_E_l", "ti_G_l", "ti_error", "nu23", "iso_E",
+          "iterations", "wall_s")
+#: The constants the resolution study extrapolates.
+RESOLVED = ("E1", "E2", "E3", "G23", "nu23", "ti_E_t", "ti_E_l", "ti_G_l", "iso_E")
 GAMMAS = (1.0, 0.5, 0.1)
 
 
@@ -56,32 +66,6 @@ def summarize(rows: list[dict], keys: tuple[str, ...]) -> list[dict]:
     return out
 
 
-def richardson(h: np.ndarray, q: np.ndarray) -> tuple[float, float]:
-    """``(q0, p)`` of ``q = q0 + c h^p`` through the three finest points (``h`` decreasing).
-
-    ``p`` solves ``(q2 − q1)/(q3 − q2) = (h1^p − h2^p)/(h2^p − h3^p)`` (bisection on [0.25, 4]); when the three
-    values are not monotone or no order in [0.25, 4] fits (increments that do not shrink: not yet asymptotic),
-    ``p = 1`` is assumed (first order, the voxel staircase) and the estimate is only indicative.
-    """
-    (h1, h2, h3), (q1, q2, q3) = h[-3:], q[-3:]
-    ratio = (q2 - q1) / (q3 - q2) if q3 != q2 else np.inf
-    if not np.isfinite(ratio) or ratio <= 0:
-        p = 1.0
-    else:
-        def f(p):
-            return (h1**p - h2**p) / (h2**p - h3**p) - ratio
-        lo, hi = 0.25, 4.0
-        if f(lo) * f(hi) > 0:        # no order in [0.25, 4] fits (e.g. increments that grow): first order
-            p = 1.0
-        else:
-            for _ in range(60):
-                mid = 0.5 * (lo + hi)
-                lo, hi = (mid, hi) if f(lo) * f(mid) > 0 else (lo, mid)
-            p = 0.5 * (lo + hi)
-    q0 = q3 - (q2 - q3) * h3**p / (h2**p - h3**p)
-    return float(q0), float(p)
-
-
 def size_study(a, comm) -> list[dict]:
     rows = []
     for gamma in a.gammas:
@@ -95,12 +79,19 @@ def size_study(a, comm) -> list[dict]:
     return rows
 
 
+def level_resolutions(a, gamma: float) -> list[int]:
+    """The grids ``N`` of the resolution study at ``gamma``: ``--strut-voxels`` or ``--levels`` (see the CLI)."""
+    if a.strut_voxels:
+        probe = tables.SweepSettings(n_cells=a.cells, tol=a.tol, box="equiaxed", distance=a.distance)
+        return [tables.resolution_for_strut(probe, a.density, gamma, v) for v in a.strut_voxels]
+    return [v * round(a.cells ** (1 / 3)) for v in a.levels]
+
+
 def resolution_study(a, comm) -> list[dict]:
     rows = []
-    m = round(a.cells ** (1 / 3))
     for gamma in a.gammas:
-        for v in a.levels:
-            settings = tables.SweepSettings(n_cells=a.cells, resolution=v * m, tol=a.tol, box="equiaxed",
+        for N in level_resolutions(a, gamma):
+            settings = tables.SweepSettings(n_cells=a.cells, resolution=N, tol=a.tol, box="equiaxed",
                                             distance=a.distance, maxiter=a.maxiter)
             rows += run(settings, tables.grid((a.density,), (gamma,), a.seeds), a.cache, comm)
     return rows
@@ -115,25 +106,55 @@ def report_size(rows: list[dict]) -> list[dict]:
     return summary
 
 
-def report_resolution(rows: list[dict]) -> list[dict]:
+def report_resolution(rows: list[dict], bias_at: list[float]) -> tuple[list[dict], list[dict]]:
+    """Print and return the levels and the Richardson estimates of :data:`RESOLVED` per γ.
+
+    The spacing is ``h = 1 / (voxels across the strut)``, ``2 r N / max(L)`` with the mean strut radius ``r`` of
+    the rows (seed 0 alone by default), so that a bias can be read at any strut resolution: ``bias_at`` lists
+    voxels across at which the model's bias ``c h^p / q₀`` is reported (e.g. a table's setting). Returns the
+    per-level rows (value and bias) and the per-constant estimates (value, order, asymptotic flag and reason,
+    GCI of the finest level, the orders of every three consecutive levels, the biases at ``bias_at``).
+    """
     summary = summarize(rows, ("gamma", "n_cells", "resolution"))
-    out = []
+    levels_out, estimates = [], []
     for gamma in sorted({s["gamma"] for s in summary}, reverse=True):
         levels = sorted((s for s in summary if s["gamma"] == gamma), key=lambda s: s["resolution"])
+        radius = float(np.mean([r["radius"] for r in rows if r["gamma"] == gamma]))
+        box = max(gamma, 1.0)
+        across = np.array([2 * radius * s["resolution"] / box for s in levels])
+        print(f"γ = {gamma}: {levels[0]['n_cells']} cells, seeds per level {[s['n_seeds'] for s in levels]}")
+        print(f"  {'N':>5} {'across':>6} " + " ".join(f"{n:>9}" for n in RESOLVED) + f" {'iters':>6} {'wall s':>7}")
+        for s, a in zip(levels, across):
+            print(f"  {s['resolution']:5d} {a:6.2f} " + " ".join(f"{s[n]:9.4g}" for n in RESOLVED)
+                  + f" {s['iterations']:6.0f} {s['wall_s']:7.1f}")
         if len(levels) < 3:
+            print("  fewer than 3 levels: no extrapolation")
             continue
-        h = 1.0 / np.array([s["resolution"] for s in levels], dtype=float)
-        print(f"γ = {gamma}: N = {[s['resolution'] for s in levels]}")
-        for name in MODULI[:9]:
+        h = 1.0 / across
+        for name in RESOLVED:
             q = np.array([s[name] for s in levels])
-            q0, p = richardson(h, q)
-            bias = (q - q0) / q0
-            print(f"  {name:>7}: " + " ".join(f"{v:9.4e}" for v in q) + f" → {q0:9.4e} (p = {p:.2f}); bias "
-                  + " ".join(f"{b:+.1%}" for b in bias))
-            for s, b in zip(levels, bias):
-                out.append({"gamma": gamma, "n_cells": s["n_cells"], "resolution": s["resolution"], "name": name,
-                            "value": s[name], "extrapolated": q0, "order": p, "bias": float(b)})
-    return out
+            est = richardson(h, q)
+            bias = (q - est.value) / est.value    # every level's, not only the three the estimate used
+            triples = [observed_order(h[k - 3:k], q[k - 3:k])[0] for k in range(3, len(h) + 1)]
+            flag = "" if est.asymptotic else f"  NOT ASYMPTOTIC (p = {est.order:g} assumed): {est.reason}"
+            print(f"  {name:>7}: → {est.value:9.4g} (p = {est.order:.2f}, GCI {est.gci:.1%}); orders of consecutive "
+                  "triples " + " ".join("–" if p is None else f"{p:.2f}" for p in triples) + "; bias "
+                  + " ".join(f"{b:+.1%}" for b in bias) + flag)
+            for s, a, b in zip(levels, across, bias):
+                levels_out.append({"gamma": gamma, "n_cells": s["n_cells"], "resolution": s["resolution"],
+                                   "across": float(a), "n_seeds": s["n_seeds"], "name": name,
+                                   "value": s[name], "bias": float(b)})
+            row = {"gamma": gamma, "name": name, "extrapolated": est.value, "order": est.order,
+                   "asymptotic": est.asymptotic, "reason": est.reason, "gci_finest": est.gci,
+                   "finest": float(q[-1]), "finest_across": float(across[-1]),
+                   "triple_orders": " ".join("nan" if p is None else f"{p:.3f}" for p in triples)}
+            row |= {f"bias_at_{v:g}": float(est.bias(1.0 / v)) for v in bias_at}
+            estimates.append(row)
+        if bias_at:
+            print("  model bias c h^p/q0 at " + ", ".join(f"{v:g}" for v in bias_at) + " voxels across: "
+                  + "; ".join(f"{e['name']} " + " ".join(f"{e[f'bias_at_{v:g}']:+.1%}" for v in bias_at)
+                              for e in estimates if e["gamma"] == gamma))
+    return levels_out, estimates
 
 
 def main(argv=None) -> int:
@@ -149,14 +170,21 @@ def main(argv=None) -> int:
     p.add_argument("--voxels-per-cell", type=int, default=30)
     p.add_argument("--cells", type=int, default=27, help="cells per RVE (resolution study)")
     p.add_argument("--levels", type=int, nargs="+", default=[20, 30, 40, 50], help="voxels per cell width")
+    p.add_argument("--strut-voxels", type=float, nargs="+", default=None,
+                   help="resolution study: levels as voxels across the strut diameter of the seed-0 foam at each γ "
+                        "(N the smallest grid with cubic voxels reaching it); replaces --levels")
     p.add_argument("--tol", type=float, default=1e-4)
+    p.add_argument("--bias-at", type=float, nargs="*", default=[],
+                   help="resolution study: also report the model's bias at these voxels across the strut")
     p.add_argument("--cube", action="store_true", help="size study: also the unit cube, 8 cells, N = 48")
     p.add_argument("--maxiter", type=int, default=10000, help="CG iterations per load case")
     p.add_argument("--ci", action="store_true", help="a tiny case (seconds)")
     a = p.parse_args(argv)
     if a.ci:
-        a.gammas, a.seeds, a.across, a.voxels_per_cell, a.levels, a.cells = [0.5], [0, 1], [2], 10, [10, 12, 14], 8
+        a.gammas, a.across, a.voxels_per_cell, a.levels, a.cells = [0.5], [2], 10, [10, 12, 14], 8
+        a.seeds = [0, 1] if a.study == "size" else [0]
         a.density = 0.3
+        a.strut_voxels = [2.5, 3.0, 3.5] if a.study == "resolution" else None
     a.seeds = a.seeds or ([0, 1, 2] if a.study == "size" else [0])
     a.cache = a.cache or a.out / "cache"
     comm = MPI.COMM_WORLD
@@ -164,9 +192,13 @@ def main(argv=None) -> int:
     if comm.rank == 0:
         a.out.mkdir(parents=True, exist_ok=True)
         tables.to_csv(rows, a.out / f"{a.study}.csv")
-        summary = report_size(rows) if a.study == "size" else report_resolution(rows)
-        if summary:
-            tables.to_csv(summary, a.out / f"{a.study}_summary.csv")
+        if a.study == "size":
+            tables.to_csv(report_size(rows), a.out / "size_summary.csv")
+        else:
+            levels, estimates = report_resolution(rows, a.bias_at)
+            if estimates:
+                tables.to_csv(levels, a.out / "resolution_summary.csv")
+                tables.to_csv(estimates, a.out / "resolution_extrapolation.csv")
         print(f"wrote {a.out / (a.study + '.csv')}")
         off = [r for r in rows if abs(r["measured_density"] - r["density"]) > 0.002]
         if off:

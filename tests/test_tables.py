@@ -307,3 +307,25 @@ def test_shipped_equiaxed_table_is_resolved_and_read_by_name():
         m = foam_material(table["density"][i], table["gamma"][i], E_TPU, 0.3, table="equiaxed")
         np.testing.assert_allclose([m.E_t, m.G_l], [E_TPU * table["ti_E_t"][i], E_TPU * table["ti_G_l"][i]],
                                    rtol=1e-10)
+
+
+def test_resolution_for_strut_is_the_smallest_admissible_grid():
+    """N reaches the requested voxels across the strut and N − step does not; the step gives cubic voxels (γN an
+    integer); with multiple=10 it reproduces the shipped `equiaxed` table's grids (3.85 voxels across, seed 0)."""
+    from meshes.foam import VoronoiFoam
+
+    settings = tables.SweepSettings(n_cells=8, box="equiaxed")
+    for gamma, step in ((1.0, 1), (0.5, 2), (0.1, 10)):
+        width = 2 * VoronoiFoam(8, 0.18, gamma, seed=0, box="equiaxed").radius
+        for voxels in (3.5, 6.1):
+            N = tables.resolution_for_strut(settings, 0.18, gamma, voxels)
+            assert N % step == 0 and width * N >= voxels > width * (N - step)
+    shipped = tables.read_csv(tables.table_paths("equiaxed")["samples"])
+    for gamma in (0.1, 1.0):
+        N = tables.resolution_for_strut(tables.SweepSettings(n_cells=27, box="equiaxed"), 0.18, gamma, 3.85,
+                                        multiple=10)
+        assert set(shipped["resolution"][shipped["gamma"] == gamma]) == {N}
+    with pytest.raises(ValueError, match=r"voxels across the strut must be positive and finite, got -1"):
+        tables.resolution_for_strut(settings, 0.18, 1.0, -1)
+    with pytest.raises(ValueError, match=r"multiple must be a positive integer, got 0"):
+        tables.resolution_for_strut(settings, 0.18, 1.0, 3.5, multiple=0)
