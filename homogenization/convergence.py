@@ -22,21 +22,29 @@ with ``q₀`` the converged value, ``p`` the order of convergence and ``c`` a co
     for an order observed from three levels and ``3`` for an assumed order (P. J. Roache, *Verification and
     Validation in Computational Science and Engineering*, Hermosa, 1998; ASME V&V 20-2009).
 
+:func:`fit_power_law`
+    The least-squares fit of ``q₀ + c h^p`` to all levels (``p`` fitted, or given), for levels whose increments
+    scatter about the trend (e.g. voxelized geometry, whose solid fraction jumps from one grid to the next): the
+    three-level estimate follows every such jump, the fit averages them and gives the residual scatter and the
+    standard error of ``q₀``.
+
 The bias of a level is its relative distance to the extrapolated value, ``(q(h) − q₀)/q₀``
 (:meth:`RichardsonEstimate.bias`); at a spacing that was not computed it follows from the model, ``c h^p/q₀``.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import brentq
+from scipy.optimize import brentq, minimize_scalar
 
 from foambase.errors import InputError
 
-__all__ = ["ORDER_BOUNDS", "RichardsonEstimate", "gci", "observed_order", "richardson", "richardson_two_level"]
+__all__ = ["ORDER_BOUNDS", "PowerLawFit", "RichardsonEstimate", "fit_power_law", "gci", "observed_order", "richardson",
+           "richardson_two_level"]
 
 #: Orders accepted as observed (outside them the three levels are not taken as asymptotic).
 ORDER_BOUNDS = (0.25, 4.0)
@@ -83,15 +91,7 @@ class RichardsonEstimate:
         ``None``: of every level used (the computed values). A spacing ``h``: the model's ``c h^p / q₀`` (for a
         spacing that was not computed, e.g. a table's setting between the levels; outside them it extrapolates).
         """
-        if self.value == 0:
-            raise InputError("the extrapolated value is 0: the relative bias is undefined; use the absolute error")
-        if h is None:
-            return (np.asarray(self.q) - self.value) / self.value
-        h = np.asarray(h, dtype=float)
-        if np.any(~np.isfinite(h)) or np.any(h <= 0):
-            raise InputError(f"h must be positive and finite, got {h.tolist()}")
-        out = self.coefficient * h**self.order / self.value
-        return float(out) if out.ndim == 0 else out
+        return _bias(self, h)
 
     @property
     def gci(self) -> float:
@@ -103,6 +103,19 @@ class RichardsonEstimate:
         """The band ``q_f ∓ GCI |q_f|`` that holds the converged value with about 95 % confidence (Roache)."""
         half = self.gci * abs(self.q[-1])
         return self.q[-1] - half, self.q[-1] + half
+
+
+def _bias(est, h) -> float | np.ndarray:
+    """``(q − q₀)/q₀`` of the levels of ``est`` (``h`` None) or ``c h^p/q₀`` of its model at ``h``."""
+    if est.value == 0:
+        raise InputError("the extrapolated value is 0: the relative bias is undefined; use the absolute error")
+    if h is None:
+        return (np.asarray(est.q) - est.value) / est.value
+    h = np.asarray(h, dtype=float)
+    if np.any(~np.isfinite(h)) or np.any(h <= 0):
+        raise InputError(f"h must be positive and finite, got {h.tolist()}")
+    out = est.coefficient * h**est.order / est.value
+    return float(out) if out.ndim == 0 else out
 
 
 def _check_levels(h, q, minimum: int) -> tuple[np.ndarray, np.ndarray]:
@@ -243,3 +256,94 @@ def richardson(h: Sequence[float], q: Sequence[float], *, fallback_order: float 
                               q=tuple(map(float, q3)),
                               safety_factor=SAFETY_OBSERVED if asymptotic else SAFETY_ASSUMED)
 
+
+
+@dataclass(frozen=True)
+class PowerLawFit:
+    """The least-squares fit ``q(h) = q₀ + c h^p`` to every level (:func:`fit_power_law`).
+
+    Attributes
+    ----------
+    value, order, coefficient
+        ``q₀``, ``p`` and ``c``.
+    order_fitted
+        Whether ``p`` was fitted (``False``: given).
+    asymptotic
+        ``False`` when the fitted ``p`` lies on a bound of ``order_bounds`` (the levels do not determine an order
+        in the bounds); ``reason`` says so. Always ``True`` for a given order.
+    reason
+        ``""`` or why the fit is not taken as asymptotic.
+    residual_std
+        ``sqrt(Σ r² / (n − k))`` of the residuals, ``k`` = 3 fitted parameters (2 with a given order); NaN when
+        ``n = k`` (an exact fit).
+    value_stderr
+        Standard error of ``q₀`` from the linear least squares at the final ``p`` (it does not include the
+        uncertainty of a fitted ``p``); NaN when ``n = k``.
+    h, q
+        The levels, coarse to fine.
+
+    """
+
+    value: float
+    order: float
+    coefficient: float
+    order_fitted: bool
+    asymptotic: bool
+    reason: str
+    residual_std: float
+    value_stderr: float
+    h: tuple[float, ...]
+    q: tuple[float, ...]
+
+    def bias(self, h: float | Sequence[float] | np.ndarray | None = None) -> float | np.ndarray:
+        """Relative bias ``(q − q₀)/q₀``: of every level (``None``) or the model's ``c h^p/q₀`` at ``h``."""
+        return _bias(self, h)
+
+
+def _linear_fit(hp: np.ndarray, q: np.ndarray) -> tuple[float, float, float, np.ndarray]:
+    """``q₀, c`` of ``q = q₀ + c hp`` by least squares, the sum of squared residuals and ``(AᵀA)⁻¹``."""
+    A = np.column_stack([np.ones_like(hp), hp])
+    (q0, c), *_ = np.linalg.lstsq(A, q, rcond=None)
+    r = q - A @ np.array([q0, c])
+    return float(q0), float(c), float(r @ r), np.linalg.inv(A.T @ A)
+
+
+def fit_power_law(h: Sequence[float], q: Sequence[float], *, order: float | None = None,
+                  order_bounds: tuple[float, float] = ORDER_BOUNDS) -> PowerLawFit:
+    """Least-squares fit of ``q(h) = q₀ + c h^p`` to every level.
+
+    ``p`` given: linear least squares in ``(q₀, c)`` (at least two levels). ``p`` fitted (``order=None``): the
+    ``p`` in ``order_bounds`` minimising the sum of squared residuals, each ``p`` with its linear ``(q₀, c)`` (a
+    scan of 400 log-spaced orders refined by a bounded scalar minimisation; at least three levels). Three levels
+    and a fitted ``p`` give the three-level Richardson estimate exactly (no residual); two levels and a given
+    ``p`` the two-level one. ``h`` is scaled by its smallest value internally (conditioning).
+    """
+    h, q = _check_levels(h, q, 3 if order is None else 2)
+    lo, hi = order_bounds
+    if not 0 < lo < hi:
+        raise InputError(f"order_bounds must be 0 < low < high, got {order_bounds!r}")
+    scale = h[-1]
+    x = h / scale
+    reason = ""
+    if order is not None:
+        if not (np.isfinite(order) and order > 0):
+            raise InputError(f"the order must be > 0 and finite, got {order!r}")
+        p, k = float(order), 2
+    else:
+        k = 3
+        grid = np.geomspace(lo, hi, 400)
+        ssr = [_linear_fit(x**s, q)[2] for s in grid]
+        i = int(np.argmin(ssr))
+        a, b = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
+        p = float(minimize_scalar(lambda s: _linear_fit(x**s, q)[2], bounds=(a, b), method="bounded",
+                                  options={"xatol": 1e-12}).x) if b > a else float(grid[i])
+        if i in (0, len(grid) - 1):
+            reason = (f"the best order lies on the bound {p:.3g} of {order_bounds}: the levels do not determine an "
+                      "order (not yet asymptotic, or increments of alternating sign)")
+    q0, c, ssr, cov = _linear_fit(x**p, q)
+    dof = len(h) - k
+    sigma = math.sqrt(ssr / dof) if dof > 0 else math.nan
+    return PowerLawFit(value=q0, order=p, coefficient=c / scale**p, order_fitted=order is None,
+                       asymptotic=not reason, reason=reason, residual_std=sigma,
+                       value_stderr=sigma * math.sqrt(cov[0, 0]) if dof > 0 else math.nan,
+                       h=tuple(map(float, h)), q=tuple(map(float, q)))

@@ -19,7 +19,10 @@ stopped, and the two studies share the samples they have in common.
     :func:`homogenization.convergence.richardson` in ``h = 1/(voxels across the strut)``: the observed order from the
     three finest levels (or the first-order fallback, flagged NOT ASYMPTOTIC with its reason), the extrapolated
     value, the GCI of the finest level, the orders of every three consecutive levels (whether the order has settled),
-    the bias of every level and, with ``--bias-at``, the model's bias at other strut resolutions (a table's setting).
+    the bias of every level and, with ``--bias-at``, the model's bias at other strut resolutions (a table's setting);
+    and the least-squares fits to all levels (:func:`homogenization.convergence.fit_power_law`, ``p`` fitted and
+    ``p = 1``), which average the level-to-level scatter of voxelized struts that the three-level estimate follows.
+    ``--voxel-fraction`` adds the solid fraction of every level's voxel image (voxelizes each sample again).
 
 Writes ``<study>.csv`` (every sample) and ``size_summary.csv`` or ``resolution_summary.csv`` (every level and
 constant) and ``resolution_extrapolation.csv`` (every constant) under ``--out``. Run with nice and one thread
@@ -37,7 +40,7 @@ import numpy as np
 from mpi4py import MPI
 
 from homogenization import tables
-from homogenization.convergence import observed_order, richardson
+from homogenization.convergence import fit_power_law, observed_order, richardson
 
 MODULI = ("E1", "E2", "E3", "G23", "G13", "G12", "ti_E_t", "ti_E_l", "ti_G_l", "ti_error", "nu23", "iso_E",
           "iterations", "wall_s")
@@ -106,7 +109,20 @@ def report_size(rows: list[dict]) -> list[dict]:
     return summary
 
 
-def report_resolution(rows: list[dict], bias_at: list[float]) -> tuple[list[dict], list[dict]]:
+def voxel_fractions(rows: list[dict]) -> dict[tuple[float, int], float]:
+    """Solid fraction of the voxel image of every (γ, N), mean over the rows' seeds (the samples' images)."""
+    from meshes.foam import VoronoiFoam
+
+    out: dict[tuple[float, int], list[float]] = {}
+    for r in rows:
+        foam = VoronoiFoam(int(r["n_cells"]), float(r["density"]), float(r["gamma"]), seed=int(r["seed"]),
+                           box=None if r["box"] == "cube" else r["box"], distance=r["distance"])
+        out.setdefault((r["gamma"], int(r["resolution"])), []).append(float(foam.voxelize(int(r["resolution"])).mean()))
+    return {k: float(np.mean(v)) for k, v in out.items()}
+
+
+def report_resolution(rows: list[dict], bias_at: list[float],
+                      fractions: dict[tuple[float, int], float] | None = None) -> tuple[list[dict], list[dict]]:
     """Print and return the levels and the Richardson estimates of :data:`RESOLVED` per γ.
 
     The spacing is ``h = 1 / (voxels across the strut)``, ``2 r N / max(L)`` with the mean strut radius ``r`` of
@@ -114,6 +130,7 @@ def report_resolution(rows: list[dict], bias_at: list[float]) -> tuple[list[dict
     voxels across at which the model's bias ``c h^p / q₀`` is reported (e.g. a table's setting). Returns the
     per-level rows (value and bias) and the per-constant estimates (value, order, asymptotic flag and reason,
     GCI of the finest level, the orders of every three consecutive levels, the biases at ``bias_at``).
+    ``fractions`` (:func:`voxel_fractions`) adds the voxel images' solid fraction to the level table.
     """
     summary = summarize(rows, ("gamma", "n_cells", "resolution"))
     levels_out, estimates = [], []
@@ -123,9 +140,11 @@ def report_resolution(rows: list[dict], bias_at: list[float]) -> tuple[list[dict
         box = max(gamma, 1.0)
         across = np.array([2 * radius * s["resolution"] / box for s in levels])
         print(f"γ = {gamma}: {levels[0]['n_cells']} cells, seeds per level {[s['n_seeds'] for s in levels]}")
-        print(f"  {'N':>5} {'across':>6} " + " ".join(f"{n:>9}" for n in RESOLVED) + f" {'iters':>6} {'wall s':>7}")
-        for s, a in zip(levels, across):
-            print(f"  {s['resolution']:5d} {a:6.2f} " + " ".join(f"{s[n]:9.4g}" for n in RESOLVED)
+        fraction = [fractions[(gamma, s["resolution"])] if fractions else np.nan for s in levels]
+        print(f"  {'N':>5} {'across':>6} {'voxels':>7} " + " ".join(f"{n:>9}" for n in RESOLVED)
+              + f" {'iters':>6} {'wall s':>7}")
+        for s, a, f in zip(levels, across, fraction):
+            print(f"  {s['resolution']:5d} {a:6.2f} {f:7.4f} " + " ".join(f"{s[n]:9.4g}" for n in RESOLVED)
                   + f" {s['iterations']:6.0f} {s['wall_s']:7.1f}")
         if len(levels) < 3:
             print("  fewer than 3 levels: no extrapolation")
@@ -136,23 +155,33 @@ def report_resolution(rows: list[dict], bias_at: list[float]) -> tuple[list[dict
             est = richardson(h, q)
             bias = (q - est.value) / est.value    # every level's, not only the three the estimate used
             triples = [observed_order(h[k - 3:k], q[k - 3:k])[0] for k in range(3, len(h) + 1)]
+            fit, first = fit_power_law(h, q), fit_power_law(h, q, order=1.0)
             flag = "" if est.asymptotic else f"  NOT ASYMPTOTIC (p = {est.order:g} assumed): {est.reason}"
             print(f"  {name:>7}: → {est.value:9.4g} (p = {est.order:.2f}, GCI {est.gci:.1%}); orders of consecutive "
                   "triples " + " ".join("–" if p is None else f"{p:.2f}" for p in triples) + "; bias "
                   + " ".join(f"{b:+.1%}" for b in bias) + flag)
-            for s, a, b in zip(levels, across, bias):
+            print(f"  {'':>7}  least squares, all levels: → {fit.value:9.4g} ± {fit.value_stderr:.2g} (p = "
+                  f"{fit.order:.2f}, residual {fit.residual_std / abs(fit.value):.1%}); bias "
+                  + " ".join(f"{b:+.1%}" for b in fit.bias()) + ("" if fit.asymptotic else f"  ({fit.reason})")
+                  + f"; with p = 1: → {first.value:9.4g} (residual {first.residual_std / abs(first.value):.1%})")
+            for s, a, f, b in zip(levels, across, fraction, bias):
                 levels_out.append({"gamma": gamma, "n_cells": s["n_cells"], "resolution": s["resolution"],
-                                   "across": float(a), "n_seeds": s["n_seeds"], "name": name,
+                                   "across": float(a), "voxel_fraction": f, "n_seeds": s["n_seeds"], "name": name,
                                    "value": s[name], "bias": float(b)})
             row = {"gamma": gamma, "name": name, "extrapolated": est.value, "order": est.order,
                    "asymptotic": est.asymptotic, "reason": est.reason, "gci_finest": est.gci,
                    "finest": float(q[-1]), "finest_across": float(across[-1]),
                    "triple_orders": " ".join("nan" if p is None else f"{p:.3f}" for p in triples)}
             row |= {f"bias_at_{v:g}": float(est.bias(1.0 / v)) for v in bias_at}
+            row |= {"fit_value": fit.value, "fit_stderr": fit.value_stderr, "fit_order": fit.order,
+                    "fit_residual": fit.residual_std, "fit_asymptotic": fit.asymptotic,
+                    "fit1_value": first.value, "fit1_stderr": first.value_stderr, "fit1_residual": first.residual_std}
+            row |= {f"fit_bias_at_{v:g}": float(fit.bias(1.0 / v)) for v in bias_at}
             estimates.append(row)
-        if bias_at:
-            print("  model bias c h^p/q0 at " + ", ".join(f"{v:g}" for v in bias_at) + " voxels across: "
-                  + "; ".join(f"{e['name']} " + " ".join(f"{e[f'bias_at_{v:g}']:+.1%}" for v in bias_at)
+        for kind in ("", "fit_") if bias_at else ():
+            print(f"  model bias c h^p/q0 ({'least squares' if kind else 'three-level'}) at "
+                  + ", ".join(f"{v:g}" for v in bias_at) + " voxels across: "
+                  + "; ".join(f"{e['name']} " + " ".join(f"{e[f'{kind}bias_at_{v:g}']:+.1%}" for v in bias_at)
                               for e in estimates if e["gamma"] == gamma))
     return levels_out, estimates
 
@@ -174,6 +203,8 @@ def main(argv=None) -> int:
                    help="resolution study: levels as voxels across the strut diameter of the seed-0 foam at each γ "
                         "(N the smallest grid with cubic voxels reaching it); replaces --levels")
     p.add_argument("--tol", type=float, default=1e-4)
+    p.add_argument("--voxel-fraction", action="store_true",
+                   help="resolution study: also report the solid fraction of every level's voxel image")
     p.add_argument("--bias-at", type=float, nargs="*", default=[],
                    help="resolution study: also report the model's bias at these voxels across the strut")
     p.add_argument("--cube", action="store_true", help="size study: also the unit cube, 8 cells, N = 48")
@@ -195,7 +226,7 @@ def main(argv=None) -> int:
         if a.study == "size":
             tables.to_csv(report_size(rows), a.out / "size_summary.csv")
         else:
-            levels, estimates = report_resolution(rows, a.bias_at)
+            levels, estimates = report_resolution(rows, a.bias_at, voxel_fractions(rows) if a.voxel_fraction else None)
             if estimates:
                 tables.to_csv(levels, a.out / "resolution_summary.csv")
                 tables.to_csv(estimates, a.out / "resolution_extrapolation.csv")

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from foambase.errors import InputError
-from homogenization.convergence import gci, observed_order, richardson, richardson_two_level
+from homogenization.convergence import fit_power_law, gci, observed_order, richardson, richardson_two_level
 
 TIGHT = 1e-9
 
@@ -95,6 +95,53 @@ def test_too_fast_and_degenerate_increments_are_flagged():
     assert "zero" in observed_order(h, [1.0, 2.0, 2.0])[1]
 
 
+@pytest.mark.parametrize("p", [1.0, 2.0, 0.6, 2.7])
+def test_least_squares_fit_recovers_q0_and_order(p):
+    h = np.array([1 / 34, 1 / 43, 1 / 54, 1 / 68, 1 / 85, 1 / 107])
+    fit = fit_power_law(h, model(h, p=p))
+    assert fit.asymptotic and fit.order_fitted
+    assert fit.order == pytest.approx(p, rel=1e-6) and fit.value == pytest.approx(0.0273, rel=1e-7)
+    assert fit.coefficient == pytest.approx(-0.41, rel=1e-5) and fit.residual_std < 1e-12
+
+
+def test_least_squares_fit_reduces_to_the_richardson_formulas():
+    h = [0.3, 0.21, 0.1]
+    q = model(h, p=1.4)
+    q[0] += 0.003                                      # any three values with an order in the bounds
+    three = richardson(h, q)
+    fit = fit_power_law(h, q)
+    assert three.asymptotic and fit.order == pytest.approx(three.order, rel=1e-6)
+    assert fit.value == pytest.approx(three.value, rel=1e-7) and np.isnan(fit.residual_std)
+    two = fit_power_law(h[1:], q[1:], order=2.0)
+    assert two.value == pytest.approx(richardson_two_level(q[1], q[2], 2.1, 2.0), rel=1e-12)
+
+
+def test_least_squares_fit_of_scattered_levels():
+    """Levels scattered about the model: the fixed-order fit's residual std and standard error are those of the
+    linear regression (cross-check with numpy.polyfit), and the known q0 lies within a few standard errors."""
+    h = 1 / np.array([34, 43, 54, 68, 85, 107], dtype=float)
+    noise = np.array([+1, -1, +1, -1, +1, -1]) * 2e-4
+    q = model(h, p=1.0) + noise
+    fit = fit_power_law(h, q, order=1.0)
+    coef, cov = np.polyfit(h, q, 1, cov="unscaled")
+    residual = q - np.polyval(coef, h)
+    sigma = np.sqrt(residual @ residual / 4)
+    assert fit.value == pytest.approx(coef[1], rel=1e-10) and fit.residual_std == pytest.approx(sigma, rel=1e-8)
+    assert fit.value_stderr == pytest.approx(sigma * np.sqrt(cov[1, 1]), rel=1e-8)
+    assert abs(fit.value - 0.0273) < 3 * fit.value_stderr
+    np.testing.assert_allclose(fit.bias(), (q - fit.value) / fit.value)
+
+
+def test_least_squares_fit_flags_an_order_on_the_bound():
+    h = [0.1, 0.05, 0.025, 0.0125]
+    fit = fit_power_law(h, [1.0, 1.2, 1.1, 1.15])       # alternating increments: no order fits
+    assert not fit.asymptotic and "bound" in fit.reason
+    with pytest.raises(InputError, match=r"at least 3 levels, got 2"):
+        fit_power_law([0.1, 0.05], [1.0, 2.0])
+    with pytest.raises(InputError, match=r"order must be > 0 and finite, got nan"):
+        fit_power_law([0.1, 0.05], [1.0, 2.0], order=float("nan"))
+
+
 @pytest.mark.parametrize("h, q, match", [
     ([0.1, 0.05], [1.0, 2.0], r"at least 3 levels, got 2"),
     ([0.1, 0.05, 0.05], [1.0, 2.0, 3.0], r"decrease strictly.*h\[1\] = 0.05 then h\[2\] = 0.05"),
@@ -128,7 +175,8 @@ def test_resolution_study_ci(tmp_path):
     """``foam_rve_study.py resolution --ci``: three strut resolutions of one small foam, extrapolated per constant.
 
     Each level reaches its voxels across the strut by the smallest admissible grid (γ = 0.5: N even), every
-    constant gets a finite estimate, and the per-level bias is the level's distance to it.
+    constant gets a finite estimate, the per-level bias is the level's distance to it, and every level's voxel
+    image holds about the foam's solid fraction.
     """
     import csv
     import sys
@@ -137,7 +185,8 @@ def test_resolution_study_ci(tmp_path):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "studies"))
     import foam_rve_study
 
-    assert foam_rve_study.main(["resolution", "--ci", "--out", str(tmp_path), "--bias-at", "3"]) == 0
+    argv = ["resolution", "--ci", "--out", str(tmp_path), "--bias-at", "3", "--voxel-fraction"]
+    assert foam_rve_study.main(argv) == 0
     with open(tmp_path / "resolution_extrapolation.csv") as f:
         estimates = {r["name"]: r for r in csv.DictReader(f)}
     with open(tmp_path / "resolution_summary.csv") as f:
@@ -150,5 +199,6 @@ def test_resolution_study_ci(tmp_path):
         assert [int(r["resolution"]) for r in mine] == sorted({int(r["resolution"]) for r in mine})
         for target, a, r in zip((2.5, 3.0, 3.5), across, mine):
             assert target <= a < target * (1 + 2 / int(r["resolution"])) + 1e-9   # the smallest even N reaching it
+            assert abs(float(r["voxel_fraction"]) - 0.3) < 0.03                 # the voxel image of a 30 % foam
             assert float(r["bias"]) == pytest.approx(
                 (float(r["value"]) - float(est["extrapolated"])) / float(est["extrapolated"]), rel=1e-9)
