@@ -128,8 +128,9 @@ def report_resolution(rows: list[dict], bias_at: list[float],
     The spacing is ``h = 1 / (voxels across the strut)``, ``2 r N / max(L)`` with the mean strut radius ``r`` of
     the rows (seed 0 alone by default), so that a bias can be read at any strut resolution: ``bias_at`` lists
     voxels across at which the model's bias ``c h^p / q₀`` is reported (e.g. a table's setting). Returns the
-    per-level rows (value and bias) and the per-constant estimates (value, order, asymptotic flag and reason,
-    GCI of the finest level, the orders of every three consecutive levels, the biases at ``bias_at``).
+    per-level rows (seed mean, standard deviation, bias) and the per-constant estimates (value, order, asymptotic
+    flag and reason, GCI of the finest level, the orders of every three consecutive levels, the biases at
+    ``bias_at``, the least-squares fits).
     ``fractions`` (:func:`voxel_fractions`) adds the voxel images' solid fraction to the level table.
     """
     summary = summarize(rows, ("gamma", "n_cells", "resolution"))
@@ -146,6 +147,13 @@ def report_resolution(rows: list[dict], bias_at: list[float],
         for s, a, f in zip(levels, across, fraction):
             print(f"  {s['resolution']:5d} {a:6.2f} {f:7.4f} " + " ".join(f"{s[n]:9.4g}" for n in RESOLVED)
                   + f" {s['iterations']:6.0f} {s['wall_s']:7.1f}")
+            if s["n_seeds"] > 1:
+                print(f"  {'± std':>5} {'':>6} {'':>7} " + " ".join(f"{s[n + '_std']:9.2g}" for n in RESOLVED)
+                      + f"   ({s['n_seeds']} seeds; scatter std/mean "
+                      + " ".join(f"{s[n + '_std'] / abs(s[n]):.1%}" for n in RESOLVED) + ")")
+            levels_out += [{"gamma": gamma, "n_cells": s["n_cells"], "resolution": s["resolution"], "across": float(a),
+                            "voxel_fraction": f, "n_seeds": s["n_seeds"], "name": name, "value": s[name],
+                            "std": s[name + "_std"], "bias": np.nan} for name in RESOLVED]
         if len(levels) < 3:
             print("  fewer than 3 levels: no extrapolation")
             continue
@@ -164,10 +172,9 @@ def report_resolution(rows: list[dict], bias_at: list[float],
                   f"{fit.order:.2f}, residual {fit.residual_std / abs(fit.value):.1%}); bias "
                   + " ".join(f"{b:+.1%}" for b in fit.bias()) + ("" if fit.asymptotic else f"  ({fit.reason})")
                   + f"; with p = 1: → {first.value:9.4g} (residual {first.residual_std / abs(first.value):.1%})")
-            for s, a, f, b in zip(levels, across, fraction, bias):
-                levels_out.append({"gamma": gamma, "n_cells": s["n_cells"], "resolution": s["resolution"],
-                                   "across": float(a), "voxel_fraction": f, "n_seeds": s["n_seeds"], "name": name,
-                                   "value": s[name], "bias": float(b)})
+            for s, b in zip(levels, bias):
+                next(r for r in levels_out if (r["gamma"], r["resolution"], r["name"]) == (
+                    gamma, s["resolution"], name))["bias"] = float(b)
             row = {"gamma": gamma, "name": name, "extrapolated": est.value, "order": est.order,
                    "asymptotic": est.asymptotic, "reason": est.reason, "gci_finest": est.gci,
                    "finest": float(q[-1]), "finest_across": float(across[-1]),
@@ -227,8 +234,8 @@ def main(argv=None) -> int:
             tables.to_csv(report_size(rows), a.out / "size_summary.csv")
         else:
             levels, estimates = report_resolution(rows, a.bias_at, voxel_fractions(rows) if a.voxel_fraction else None)
+            tables.to_csv(levels, a.out / "resolution_summary.csv")
             if estimates:
-                tables.to_csv(levels, a.out / "resolution_summary.csv")
                 tables.to_csv(estimates, a.out / "resolution_extrapolation.csv")
         print(f"wrote {a.out / (a.study + '.csv')}")
         off = [r for r in rows if abs(r["measured_density"] - r["density"]) > 0.002]
