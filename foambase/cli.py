@@ -164,7 +164,7 @@ def main(prog: str, description: str, registry: Sequence[str], argv: Sequence[st
 def report_checks(failures: Sequence[str], comm=None) -> int:
     """The exit status of a script's own checks (demos, studies), the same on every rank: 0 if none failed, else 1.
 
-    Rank 0's ``failures`` are broadcast (a check computed on rank 0 only passes ``[]`` elsewhere); rank 0 prints
+    Rank 0's ``failures`` are broadcast (a check computed on rank 0 only may pass ``[]`` or ``None`` elsewhere); rank 0 prints
     each as ``CHECK FAILED: ...`` on stderr, then ``all checks passed`` or ``N check(s) failed`` on stdout.
     ``comm`` defaults to ``MPI.COMM_WORLD``.
     """
@@ -172,7 +172,7 @@ def report_checks(failures: Sequence[str], comm=None) -> int:
         from mpi4py import MPI
 
         comm = MPI.COMM_WORLD
-    failures = comm.bcast(list(failures), root=0)
+    failures = comm.bcast(list(failures) if comm.rank == 0 else None, root=0)
     if comm.rank == 0:
         for failure in failures:
             print(f"CHECK FAILED: {failure}", file=sys.stderr, flush=True)
