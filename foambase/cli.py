@@ -164,9 +164,9 @@ def main(prog: str, description: str, registry: Sequence[str], argv: Sequence[st
 def report_checks(failures: Sequence[str], comm=None) -> int:
     """The exit status of a script's own checks (demos, studies), the same on every rank: 0 if none failed, else 1.
 
-    Rank 0's ``failures`` are broadcast (a check computed on rank 0 only may pass ``[]`` or ``None`` elsewhere); rank 0 prints
-    each as ``CHECK FAILED: ...`` on stderr, then ``all checks passed`` or ``N check(s) failed`` on stdout.
-    ``comm`` defaults to ``MPI.COMM_WORLD``.
+    Rank 0's ``failures`` are broadcast (a check computed on rank 0 only may pass ``[]`` or ``None`` elsewhere);
+    rank 0 prints each as ``CHECK FAILED: ...`` on stderr, then ``all checks passed`` or ``N check(s) failed`` on
+    stdout. ``comm`` defaults to ``MPI.COMM_WORLD``.
     """
     if comm is None:
         from mpi4py import MPI
