@@ -38,7 +38,8 @@ In the unit cube, ``n`` cells flattened by γ along x leave about ``(γ n)^(1/3)
 γ = 0.1 and 8 cells about one, so the struts run straight across the period and the RVE measures itself, not
 the foam. In the metric ``(Δx/γ, Δy, Δz)`` that makes the cells equiaxed, the box ``(γ, 1, 1)`` is a cube,
 so ``box="equiaxed"`` with ``n = m³`` cells puts about ``m`` cells across every direction, for every γ. Voxels
-stay cubic: the grid is ``(N1, N2, N3) = N (L1, L2, L3) / max(L)`` (see :meth:`VoronoiFoam.grid_shape`).
+stay cubic by default: the grid is ``(N1, N2, N3) = N (L1, L2, L3) / max(L)`` (see :meth:`VoronoiFoam.grid_shape`);
+an explicit grid with ``cubic=False`` accepts non-cubic voxels.
 
 Flat cells
 ----------
@@ -480,8 +481,8 @@ class VoronoiFoam:
         _check_gamma(gamma)
         box = _check_box(box, gamma)
         seeds = np.random.default_rng(seed).random((n_cells, 3)) * box
+        self.seed = seed  # before _build: its log line prints the foam's repr
         self._build(seeds, density, gamma, strut, box, distance)
-        self.seed = seed
 
     @classmethod
     def from_seeds(cls, seeds: np.ndarray, density: float, gamma: float = 1.0, strut: str | None = None, *,
@@ -495,8 +496,8 @@ class VoronoiFoam:
         if np.any(seeds < 0) or np.any(seeds >= box):
             raise FoamParameterError(f"seeds must lie in the box [0, {box.tolist()})")
         foam = cls.__new__(cls)
-        foam._build(seeds, density, gamma, strut, box, distance)
         foam.seed = None
+        foam._build(seeds, density, gamma, strut, box, distance)
         return foam
 
     # ------------------------------------------------------------------------------------------------
@@ -652,12 +653,20 @@ class VoronoiFoam:
             return d, q
         return self._distance.closest(points)
 
-    def grid_shape(self, N) -> tuple[int, int, int]:
-        """The voxel grid of cubic voxels for resolution ``N``.
+    def grid_shape(self, N, cubic: bool = True) -> tuple[int, int, int]:
+        """The voxel grid for resolution ``N``: cubic voxels unless ``cubic=False``.
 
         ``N`` an integer: ``N`` voxels along the longest box edge and ``N_a = N L_a / max(L)`` along the others,
         which must be integers (e.g. ``N`` a multiple of 10 for ``box = (0.1, 1, 1)``). ``N`` a triple
-        ``(N1, N2, N3)``: its voxels must be cubic (``L_a / N_a`` equal). The unit cube gives ``(N, N, N)``.
+        ``(N1, N2, N3)``: its voxels must be cubic (``L_a / N_a`` equal) unless ``cubic=False``. The unit cube
+        gives ``(N, N, N)``.
+
+        ``cubic=False`` (a triple only) is an explicit numerical choice: voxels of edges ``L_a / N_a`` that may
+        differ. It pays where the thin members have one orientation: the walls of the polyhedral foam at
+        γ = 0.1 are sheets nearly normal to x, whose width is resolved by the x spacing alone, so a grid with
+        voxels longer along y and z resolves them at a fraction of the cubic grid's cost. Members of other
+        orientations are resolved by the coarser spacing; check the result against a refinement of the grid
+        (docs/foam.md, "Non-cubic voxels").
         """
         if isinstance(N, (tuple, list, np.ndarray)):
             shape = tuple(N)
@@ -666,10 +675,13 @@ class VoronoiFoam:
             for n in shape:
                 _check_int("N", n, 2)
             h = self.box / np.array(shape)
-            if not np.allclose(h, h[0], rtol=1e-9, atol=0):
+            if cubic and not np.allclose(h, h[0], rtol=1e-9, atol=0):
                 raise FoamParameterError(f"N = {tuple(shape)} gives non-cubic voxels {h.tolist()} for the box "
-                                         f"{self.box.tolist()}; use N_a proportional to L_a")
+                                         f"{self.box.tolist()}; use N_a proportional to L_a, or cubic=False to "
+                                         "accept non-cubic voxels")
             return tuple(int(n) for n in shape)
+        if not cubic:
+            raise FoamParameterError(f"cubic=False needs the grid as three integers (N1, N2, N3), got N={N!r}")
         _check_int("N", N, 8)
         exact = N * self.box / self.box.max()
         shape = np.rint(exact).astype(int)
@@ -679,14 +691,16 @@ class VoronoiFoam:
                 f"{exact.tolist()} must be integers ≥ 2")
         return tuple(int(n) for n in shape)
 
-    def voxelize(self, N) -> np.ndarray:
-        """Solid indicator on a grid of cubic voxels: ``img[i, j, k] = dist(c_ijk, skeleton) ≤ radius``.
+    def voxelize(self, N, cubic: bool = True) -> np.ndarray:
+        """Solid indicator on a voxel grid: ``img[i, j, k] = dist(c_ijk, skeleton) ≤ radius``.
 
-        ``N`` as in :meth:`grid_shape` (the unit cube gives ``(N, N, N)``). Array axis ``a`` is coordinate ``x_a``
-        (axis 0 = x); voxel ``[i, j, k]`` has centre ``c_ijk = ((i+½) h, (j+½) h, (k+½) h)``, ``h = L_a / N_a``.
-        Returns a C-ordered bool array, True = solid. Exact point-in-solid test, in slabs of bounded memory.
+        ``N`` and ``cubic`` as in :meth:`grid_shape` (the unit cube gives ``(N, N, N)``; ``cubic=False`` with a
+        triple accepts non-cubic voxels, an explicit numerical choice). Array axis ``a`` is coordinate ``x_a``
+        (axis 0 = x); voxel ``[i, j, k]`` has centre ``c_ijk = ((i+½) h1, (j+½) h2, (k+½) h3)``,
+        ``h_a = L_a / N_a``. Returns a C-ordered bool array, True = solid. Exact point-in-solid test, in slabs of
+        bounded memory.
         """
-        shape = self.grid_shape(N)
+        shape = self.grid_shape(N, cubic)
         img = np.empty(shape, dtype=bool)
         N1, N2, N3 = shape
         step = max(1, _CHUNK * 4 // (N2 * N3))

@@ -744,3 +744,18 @@ def test_equilibrium_residual_of_the_returned_fields_is_below_tol(exact_fft, dis
         assert residual[J] ** 2 / C_MAX - roundoff <= err[J, J] <= residual[J] ** 2 / C_MIN + roundoff, J
         for I in range(6):
             assert abs(err[I, J]) <= load[I] * residual[J] / C_MIN + roundoff, (I, J)
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+@pytest.mark.parametrize("scheme", ["cg", "pcg"])
+def test_laminate_on_non_cubic_voxels_is_exact(axis, scheme):
+    """The grid (8, 12, 6) in the box (0.1, 1, 1) (the equiaxed box of γ = 0.1): voxels 0.0125 × 0.083 × 0.167,
+    13× longer along z than along x. A laminate along each axis is still exact."""
+    img = np.zeros(BOX_SHAPE, dtype=np.int8)
+    index = [slice(None)] * 3
+    index[axis] = slice(1, 4)
+    img[tuple(index)] = 1
+    stiff = isotropic_voigt(1000.0, 0.2)
+    r = homogenize_fft(img, [C_SOFT, stiff], box=(0.1, 1.0, 1.0), scheme=scheme, tol=1e-12)
+    f = 3 / BOX_SHAPE[axis]
+    assert rel(r.C, laminate([C_SOFT, stiff], [1 - f, f], axis)) < 1e-10

@@ -193,3 +193,37 @@ def test_fem_and_fft_approach_each_other_in_a_non_cubic_box():
     wrong = homogenize_fft(foam.voxelize(24).astype(np.int8), [VOID_C, SOLID_C], tol=1e-5, threads=1,
                            maxiter=4000).C
     assert rel_err(wrong, fft[0]) > 0.2
+
+
+# --------------------------------------------------------------------------------------------------
+# Non-cubic voxels (an explicit opt-in: voxelize(shape, cubic=False))
+# --------------------------------------------------------------------------------------------------
+def test_non_cubic_grid_samples_the_cubic_grid_at_its_voxel_centres(foam):
+    """Voxels three times as long along z as the cubic grid (18, 30, 24) have their centres at every third cubic
+    centre along z, starting at the second: the two images agree there exactly."""
+    cubic = foam.voxelize(30)
+    assert cubic.shape == (18, 30, 24)
+    coarse = foam.voxelize((18, 30, 8), cubic=False)
+    assert coarse.shape == (18, 30, 8) and foam.grid_shape((18, 30, 8), cubic=False) == (18, 30, 8)
+    assert np.array_equal(coarse, cubic[:, :, 1::3])
+    assert not np.array_equal(coarse, cubic[:, :, 0::3])  # the test can fail: the centres matter
+
+
+def test_non_cubic_grid_holds_the_density_and_is_deterministic(foam):
+    shape = (48, 80, 32)                   # voxels 0.0125 × 0.0125 × 0.025
+    img = foam.voxelize(shape, cubic=False)
+    assert abs(img.mean() - 0.3) < 0.002
+    again = VoronoiFoam(4, 0.3, 1.0, seed=2, box=BOX).voxelize(shape, cubic=False)
+    assert np.array_equal(img, again)
+
+
+def test_non_cubic_grid_is_an_explicit_opt_in(foam):
+    with pytest.raises(FoamParameterError, match=r"N = \(48, 80, 32\) gives non-cubic voxels .* cubic=False"):
+        foam.voxelize((48, 80, 32))
+    with pytest.raises(FoamParameterError, match=r"cubic=False needs the grid as three integers .* N=40"):
+        foam.voxelize(40, cubic=False)
+    with pytest.raises(FoamParameterError, match=r"N must be an integer or three integers .*\(6, 10\)"):
+        foam.voxelize((6, 10), cubic=False)
+    with pytest.raises(FoamParameterError, match=r"N must be an integer ≥ 2, got 1"):
+        foam.voxelize((6, 1, 10), cubic=False)
+
