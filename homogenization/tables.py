@@ -1,7 +1,8 @@
 """Homogenized foam tables: C_hom against relative density × anisotropy γ × seed (paper Fig. 4).
 
 One *sample* is one foam ``meshes.foam.VoronoiFoam(n_cells, density, gamma, seed, box=, distance=)`` voxelized
-with cubic voxels (``N`` along the longest box edge) and homogenized in its periodic box by
+with cubic voxels (``N`` along the longest box edge; or, opted into with ``cubic=False``, an explicit grid of
+non-cubic voxels) and homogenized in its periodic box by
 :func:`homogenization.fft.homogenize_fft` (rotated scheme, ``scheme="pcg"``: the iterates of the strain CG
 ``"cg"`` with which the shipped tables were made, at half the FFT work) with an isotropic solid of
 ``E_s = 1`` and ``ν_s = 0.3`` and a void of zero stiffness, so every modulus in the table is already
@@ -94,7 +95,8 @@ class SweepSettings:
     n_cells
         Voronoi cells per RVE.
     resolution
-        FFT grid ``N``: voxels along the longest box edge (voxels are cubic, :meth:`VoronoiFoam.grid_shape`).
+        FFT grid: an integer ``N``, voxels along the longest box edge with cubic voxels
+        (:meth:`VoronoiFoam.grid_shape`); or, with ``cubic=False`` only, the grid ``(N1, N2, N3)`` itself.
     tol
         CG tolerance on the relative equilibrium residual.
     box
@@ -104,6 +106,11 @@ class SweepSettings:
         One of :data:`FOAMS`: ``"euclidean"`` (struts) or ``"polyhedral"`` (walls, the default polytope).
     maxiter
         CG iterations per load case (``None``: the solver's default, 1000); thin voxel walls need more.
+    cubic
+        ``True`` (default): cubic voxels. ``False``: ``resolution`` is a grid ``(N1, N2, N3)`` whose voxels may be
+        non-cubic (a numerical choice for members of one orientation, such as the polyhedral foam's walls nearly
+        normal to x at γ = 0.1; :meth:`VoronoiFoam.grid_shape`). Its samples and table carry the grid in their
+        names (``N60x300x300``) and ``resolution`` column.
 
     """
 
@@ -113,6 +120,7 @@ class SweepSettings:
     box: str = "cube"
     distance: str = "euclidean"
     maxiter: int | None = None
+    cubic: bool = True
 
     @property
     def name(self) -> str:
@@ -131,10 +139,48 @@ class SweepSettings:
             raise InputError(f"distance must be one of {FOAMS}, got {self.distance!r}")
         if int(self.n_cells) != self.n_cells or self.n_cells < 2:
             raise InputError(f"n_cells must be an integer >= 2, got {self.n_cells!r}")
-        if int(self.resolution) != self.resolution or self.resolution < 8:
-            raise InputError(f"resolution must be an integer >= 8, got {self.resolution!r}")
+        if self.cubic is True:
+            if isinstance(self.resolution, (tuple, list, str)) or int(self.resolution) != self.resolution \
+                    or self.resolution < 8:
+                raise InputError(f"resolution must be an integer >= 8 (cubic voxels; a grid (N1, N2, N3) needs "
+                                 f"cubic=False), got {self.resolution!r}")
+        elif self.cubic is False:
+            grid = _parse_grid(self.resolution)
+            if grid is None:
+                raise InputError(f"with cubic=False, resolution must be three integers >= 2 (N1, N2, N3) or "
+                                 f"'N1xN2xN3', got {self.resolution!r}")
+            object.__setattr__(self, "resolution", grid)
+        else:
+            raise InputError(f"cubic must be True or False, got {self.cubic!r}")
         if not 0 < self.tol < 1:
             raise InputError(f"tol must lie in (0, 1), got {self.tol!r}")
+
+
+def _parse_grid(value) -> tuple[int, int, int] | None:
+    """``(N1, N2, N3)`` from a triple or ``'N1xN2xN3'``; ``None`` unless three integers ≥ 2."""
+    parts = value.split("x") if isinstance(value, str) else value
+    try:
+        grid = tuple(int(p) for p in parts)
+        if len(grid) != 3 or any(g < 2 or g != float(p) for g, p in zip(grid, parts, strict=True)):
+            return None
+    except (TypeError, ValueError):
+        return None
+    return grid
+
+
+def _resolution_label(settings: SweepSettings):
+    """The resolution as recorded in rows and names: ``N`` (cubic voxels) or ``'N1xN2xN3'`` (``cubic=False``)."""
+    return int(settings.resolution) if settings.cubic else "x".join(str(n) for n in settings.resolution)
+
+
+def settings_from_row(row: dict) -> SweepSettings:
+    """The sweep settings recorded in a sample row (a grid label ``'N1xN2xN3'`` means ``cubic=False``)."""
+    resolution = row["resolution"]
+    cubic = not (isinstance(resolution, str) and "x" in resolution)
+    if cubic:
+        resolution = int(float(resolution))
+    return SweepSettings(n_cells=int(row["n_cells"]), resolution=resolution, tol=float(row["tol"]), box=row["box"],
+                         distance=row["distance"], cubic=cubic)
 
 
 @dataclass(frozen=True, order=True)
@@ -181,9 +227,12 @@ def grid(densities: Iterable[float] = DENSITIES, gammas: Iterable[float] = GAMMA
 
 def _cache_key(sample: Sample, settings: SweepSettings) -> dict:
     """The exact inputs that change a sample's result (floats by ``repr``, so nothing is rounded)."""
-    return {"density": repr(float(sample.density)), "gamma": repr(float(sample.gamma)), "seed": int(sample.seed),
-            "n_cells": int(settings.n_cells), "resolution": int(settings.resolution), "tol": repr(float(settings.tol)),
-            "box": settings.box, "distance": settings.distance}
+    key = {"density": repr(float(sample.density)), "gamma": repr(float(sample.gamma)), "seed": int(sample.seed),
+           "n_cells": int(settings.n_cells), "resolution": _resolution_label(settings),
+           "tol": repr(float(settings.tol)), "box": settings.box, "distance": settings.distance}
+    if not settings.cubic:  # absent for cubic voxels, so the entries of cubic sweeps keep their names
+        key["cubic"] = False
+    return key
 
 
 def cache_name(sample: Sample, settings: SweepSettings) -> str:
@@ -194,7 +243,7 @@ def cache_name(sample: Sample, settings: SweepSettings) -> str:
     foam = "" if (settings.box, settings.distance) == ("cube", "euclidean") else f"{settings.distance}_{settings.box}_"
     digest = hashlib.sha256(json.dumps(_cache_key(sample, settings), sort_keys=True).encode()).hexdigest()[:12]
     return (f"{foam}d{sample.density:.4f}_g{sample.gamma:.4f}_s{sample.seed}_n{settings.n_cells}"
-            f"_N{settings.resolution}_tol{settings.tol:.1e}_{digest}.json")
+            f"_N{_resolution_label(settings)}_tol{settings.tol:.1e}_{digest}.json")
 
 
 def _failure_record(entry: Path) -> Path:
@@ -218,8 +267,7 @@ def read_cache_entry(path: str | os.PathLike, sample: Sample, settings: SweepSet
         missing = [c for c in SAMPLE_COLUMNS if c not in row]
         if missing:
             raise ValueError(f"no column {missing[0]!r}")
-        found = _cache_key(Sample(row["density"], row["gamma"], row["seed"]),
-                           SweepSettings(**{k: row[k] for k in ("n_cells", "resolution", "tol", "box", "distance")}))
+        found = _cache_key(Sample(row["density"], row["gamma"], row["seed"]), settings_from_row(row))
         if found != _cache_key(sample, settings):
             raise ValueError(f"its inputs {found} are not this sample's")
     except (OSError, ValueError, TypeError, UnicodeDecodeError) as exc:  # JSONDecodeError is a ValueError
@@ -269,12 +317,13 @@ def homogenize_sample(sample: Sample, settings: SweepSettings, threads: int | No
     start = time.perf_counter()
     foam = VoronoiFoam(settings.n_cells, sample.density, sample.gamma, seed=sample.seed,
                        box=None if settings.box == "cube" else settings.box, distance=settings.distance)
-    image = foam.voxelize(settings.resolution).astype(np.int8)
+    image = foam.voxelize(settings.resolution, cubic=settings.cubic).astype(np.int8)
     r = homogenize_fft(image, [np.zeros((6, 6)), isotropic_voigt(1.0, NU_SOLID)], scheme=SCHEME,
                        discretization="rotated", tol=settings.tol, threads=threads, box=tuple(foam.box),
                        maxiter=settings.maxiter)
     row = {"density": sample.density, "gamma": sample.gamma, "seed": sample.seed, "distance": settings.distance,
-           "box": settings.box, "n_cells": settings.n_cells, "resolution": settings.resolution, "tol": settings.tol,
+           "box": settings.box, "n_cells": settings.n_cells, "resolution": _resolution_label(settings),
+           "tol": settings.tol,
            "measured_density": float(foam.measured_density), "radius": float(foam.radius)}
     row.update({name: float(r.C[int(name[1]) - 1, int(name[2]) - 1]) for name in C_ENTRIES})
     row.update(engineering_constants(r.C))

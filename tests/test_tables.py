@@ -329,3 +329,34 @@ def test_resolution_for_strut_is_the_smallest_admissible_grid():
         tables.resolution_for_strut(settings, 0.18, 1.0, -1)
     with pytest.raises(ValueError, match=r"multiple must be a positive integer, got 0"):
         tables.resolution_for_strut(settings, 0.18, 1.0, 3.5, multiple=0)
+
+
+def test_non_cubic_sweep_settings_are_an_explicit_opt_in_with_their_own_entries(tmp_path):
+    """cubic=False takes the grid itself; its samples are named and keyed by the grid, carry it in their
+    'resolution' column and are read back from the cache; cubic settings keep their entries' names."""
+    grid = tables.SweepSettings(n_cells=3, resolution=(8, 16, 16), tol=1e-5, cubic=False)
+    assert grid.resolution == (8, 16, 16)
+    assert tables.SweepSettings(n_cells=3, resolution="8x16x16", tol=1e-5, cubic=False) == grid
+    sample = tables.Sample(0.3, 1.0, 1)
+    assert "_N8x16x16_" in tables.cache_name(sample, grid)
+    assert "cubic" not in tables._cache_key(sample, TINY)   # cubic entries keep their names and hashes
+    [row] = tables.run_sweep([sample], grid, tmp_path, MPI.COMM_SELF, progress=False)
+    assert row["resolution"] == "8x16x16" and tables.settings_from_row(row) == grid
+    assert abs(row["measured_density"] - 0.3) < 1e-3
+    [cubic] = tables.run_sweep([sample], TINY, tmp_path, MPI.COMM_SELF, progress=False)
+    assert tables.settings_from_row(cubic) == TINY
+    assert abs(row["iso_E"] - cubic["iso_E"]) > 1e-6 * cubic["iso_E"]   # another grid, another sample
+    assert len(list(tmp_path.glob("*.json"))) == 2
+    assert tables.run_sweep([sample], grid, tmp_path, MPI.COMM_SELF, progress=False) == [row]  # read back
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"resolution": (8, 16, 16)}, r"resolution must be an integer >= 8 .*cubic=False.*\(8, 16, 16\)"),
+    ({"resolution": 48, "cubic": False}, r"with cubic=False, resolution must be three integers .*48"),
+    ({"resolution": (8, 16), "cubic": False}, r"with cubic=False, resolution must be three integers .*\(8, 16\)"),
+    ({"resolution": "8x1x16", "cubic": False}, r"three integers >= 2 .*'8x1x16'"),
+    ({"resolution": 48, "cubic": "no"}, r"cubic must be True or False, got 'no'"),
+])
+def test_bad_grids_are_named(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        tables.SweepSettings(**kwargs)
