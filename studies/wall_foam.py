@@ -1,0 +1,190 @@
+"""The polyhedral wall foam homogenized: its resolution study and its table at the Fig. 6 beams' density.
+
+Foams ``VoronoiFoam(n, density, γ, seed, box="equiaxed", distance="polyhedral")`` (walls one track wide along the
+faces of the polyhedral Voronoi diagram, docs/foam.md), 8 cells in the equiaxed box ``(γ, 1, 1)`` unless
+``--cells``, homogenized by :func:`homogenization.tables.run_sweep` (cached one JSON per sample under ``--cache``,
+so the two studies and reruns share their samples).
+
+A grid is given per γ as ``--grid GAMMA=N`` (cubic voxels, ``N`` along the longest box edge) or
+``--grid GAMMA=N1xN2xN3`` (the grid itself, non-cubic voxels allowed: ``SweepSettings(cubic=False)``). At γ = 0.1
+the walls are sheets nearly normal to x (area-weighted mean |cos(normal, x)| ≈ 0.94), so their width is resolved
+by the x spacing: ``60x300x300`` in the box ``(0.1, 1, 1)`` (voxels twice as long along y and z as along x) puts
+about three voxels across a wall at a quarter of the cubic ``(60, 600, 600)`` grid's voxels. That is a numerical
+choice, checked by ``resolution``.
+
+``resolution``
+    Seeds ``--seeds`` (default 0) at every ``--grid`` of each γ; prints the moduli per grid with the voxels across
+    a wall along x and y (``2 × half width / h``), and for each family of grids of one voxel aspect with at least
+    three members a Richardson estimate (``q = q0 + c h^p`` through the three finest, :func:`richardson`) with
+    the remaining bias of each level.
+``table``
+    One grid per γ (``--grid``, the last given for a γ wins), seeds ``--seeds`` (default 0 1 2): writes the table
+    ``equiaxed_polyhedral`` (:attr:`SweepSettings.name`) with its samples and provenance under ``--out``, and with
+    ``--ship`` into ``homogenization/data``. Exits 1 if a sample misses its density by more than 0.002.
+
+Run: ``OMP_NUM_THREADS=1 python studies/wall_foam.py table --grid 0.1=60x300x300 --grid 1=96 --cache
+out/wall-cache --out out/wall-table`` (``mpirun -n 2`` deals the samples to two ranks). ``--ci``: both studies on
+tiny samples (4 cells, 45 %).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+from mpi4py import MPI
+
+from foam_rve_study import richardson, summarize
+from homogenization import tables
+from meshes.foam import VoronoiFoam
+
+MODULI = ("E1", "E2", "E3", "G23", "G13", "G12", "ti_E_t", "ti_E_l", "ti_G_l")
+
+
+def parse_grid(text: str) -> tuple[float, object]:
+    """``'0.1=60x300x300'`` → ``(0.1, (60, 300, 300))``; ``'1=96'`` → ``(1.0, 96)``."""
+    try:
+        gamma, grid = text.split("=")
+        if "x" in grid:
+            shape = tuple(int(n) for n in grid.split("x"))
+            if len(shape) != 3:
+                raise ValueError
+            return float(gamma), shape
+        return float(gamma), int(grid)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"a grid is GAMMA=N or GAMMA=N1xN2xN3, got {text!r}") from None
+
+
+def settings_for(grid, a) -> tables.SweepSettings:
+    cubic = not isinstance(grid, tuple)
+    return tables.SweepSettings(n_cells=a.cells, resolution=grid, tol=a.tol, box="equiaxed", distance="polyhedral",
+                                maxiter=a.maxiter, cubic=cubic)
+
+
+def spacing(gamma: float, grid) -> np.ndarray:
+    """Voxel edges ``(h1, h2, h3)`` of a grid in the equiaxed box ``(γ, 1, 1)``."""
+    box = np.array([gamma, 1.0, 1.0])
+    shape = np.array(grid if isinstance(grid, tuple) else np.rint(grid * box / box.max()), dtype=float)
+    return box / shape
+
+
+def resolution_study(a, comm) -> int:
+    rows = []
+    for gamma, grid in a.grid:
+        rows += tables.run_sweep(tables.grid((a.density,), (gamma,), a.seeds), settings_for(grid, a), a.cache, comm,
+                                 threads=1, progress=False)
+    if comm.rank != 0:
+        return 0
+    rows = [r | {"resolution": str(r["resolution"])} for r in rows]  # N or 'N1xN2xN3', one type to sort
+    summary = summarize(rows, ("gamma", "n_cells", "resolution"))
+    for s in summary:
+        members = [r for r in rows if (r["gamma"], r["resolution"]) == (s["gamma"], s["resolution"])]
+        res = s["resolution"]
+        grid = tuple(int(n) for n in res.split("x")) if "x" in res else int(res)
+        h = spacing(s["gamma"], grid)
+        half = float(np.mean([r["radius"] for r in members]))
+        s.update(h_x=h[0], aspect=h[1] / h[0], across_x=2 * half / h[0], across_y=2 * half / h[1],
+                 iterations=float(np.mean([r["iterations"] for r in members])),
+                 wall_s=float(np.mean([r["wall_s"] for r in members])))
+    print(f"{'gamma':>5} {'grid':>12} {'aspect':>6} {'across x':>8} {'iters':>6} {'wall s':>7} "
+          + " ".join(f"{n:>10}" for n in MODULI))
+    for s in summary:
+        print(f"{s['gamma']:5.2f} {str(s['resolution']):>12} {s['aspect']:6.2f} {s['across_x']:8.2f} "
+              f"{s['iterations']:6.0f} {s['wall_s']:7.0f} " + " ".join(f"{s[n]:10.4e}" for n in MODULI))
+    extrapolated = []
+    for gamma, aspect in sorted({(s["gamma"], round(s["aspect"], 6)) for s in summary}):
+        family = sorted((s for s in summary if (s["gamma"], round(s["aspect"], 6)) == (gamma, aspect)),
+                        key=lambda s: -s["h_x"])
+        if len(family) < 3:
+            continue
+        h = np.array([s["h_x"] for s in family])
+        print(f"γ = {gamma}, voxel aspect {aspect:g}: grids {[s['resolution'] for s in family]}")
+        for name in MODULI:
+            q = np.array([s[name] for s in family])
+            q0, p = richardson(h, q)
+            bias = (q - q0) / q0
+            print(f"  {name:>7}: " + " ".join(f"{v:9.4e}" for v in q) + f" → {q0:9.4e} (p = {p:.2f}); bias "
+                  + " ".join(f"{b:+.1%}" for b in bias))
+            extrapolated += [{"gamma": gamma, "aspect": aspect, "resolution": s["resolution"], "name": name,
+                              "value": s[name], "extrapolated": q0, "order": p, "bias": float(b)}
+                             for s, b in zip(family, bias, strict=True)]
+    a.out.mkdir(parents=True, exist_ok=True)
+    tables.to_csv(rows, a.out / "resolution.csv")
+    tables.to_csv(summary, a.out / "resolution_summary.csv")
+    if extrapolated:
+        tables.to_csv(extrapolated, a.out / "resolution_richardson.csv")
+    print(f"wrote {a.out / 'resolution.csv'}")
+    return density_check(rows)
+
+
+def table(a, comm) -> int:
+    start = time.perf_counter()
+    grids = dict(a.grid)
+    rows, settings = [], {}
+    for gamma, grid in sorted(grids.items()):
+        s = settings_for(grid, a)
+        settings[str(gamma)] = tables.settings_dict(s)
+        rows += tables.run_sweep(tables.grid((a.density,), (gamma,), a.seeds), s, a.cache, comm, threads=1,
+                                 progress=False)
+    if comm.rank != 0:
+        return 0
+    name = settings_for(next(iter(grids.values())), a).name
+    launcher = f"mpirun -n {comm.size} " if comm.size > 1 else ""
+    half = {str(g): VoronoiFoam(a.cells, a.density, g, seed=0, box="equiaxed", distance="polyhedral").radius
+            for g in grids}
+    provenance = {"command": launcher + " ".join(["python", "studies/wall_foam.py", *sys.argv[1:]]),
+                  "date": datetime.now(UTC).isoformat(timespec="seconds"), "ranks": comm.size,
+                  "wall_s_this_run": time.perf_counter() - start,
+                  "sample_wall_s_total": float(sum(r["wall_s"] for r in rows)), "n_samples": len(rows),
+                  "voxels_across_a_wall_along_x": {g: 2 * half[str(g)] / spacing(g, grids[g])[0] for g in grids},
+                  "settings_per_gamma": settings}
+    paths = tables.write_tables(rows, a.out, provenance, name)
+    if a.ship:
+        tables.write_tables(rows, tables.DATA_DIR, provenance, name)
+    print(tables.format_table(tables.aggregate(rows)))
+    print("written: " + ", ".join(str(v) for v in paths.values()))
+    return density_check(rows)
+
+
+def density_check(rows: list[dict]) -> int:
+    off = [r for r in rows if abs(r["measured_density"] - r["density"]) > 0.002]
+    for r in off:
+        print(f"FAILED: sample density {r['measured_density']:.4f} for target {r['density']}")
+    return 1 if off else 0
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("study", choices=("resolution", "table"), nargs="?", default="table")
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--cache", type=Path, default=None, help="sample cache (default OUT/cache)")
+    p.add_argument("--grid", type=parse_grid, action="append", default=None,
+                   help="GAMMA=N (cubic voxels) or GAMMA=N1xN2xN3 (the grid, non-cubic voxels allowed)")
+    p.add_argument("--density", type=float, default=0.18)
+    p.add_argument("--seeds", type=int, nargs="+", default=None, help="default 0 (resolution), 0 1 2 (table)")
+    p.add_argument("--cells", type=int, default=8)
+    p.add_argument("--tol", type=float, default=1e-3)
+    p.add_argument("--maxiter", type=int, default=20000, help="CG iterations per load case")
+    p.add_argument("--ship", action="store_true", help="table: also write it into homogenization/data")
+    p.add_argument("--ci", action="store_true", help="both studies on tiny samples (seconds)")
+    a = p.parse_args(argv)
+    a.cache = a.cache or a.out / "cache"
+    comm = MPI.COMM_WORLD
+    if a.ci:
+        a.cells, a.density, a.seeds, a.ship = 4, 0.45, [0], False
+        a.grid = [(1.0, (16, 12, 12)), (1.0, (20, 15, 15)), (1.0, (24, 18, 18))]
+        status = resolution_study(a, comm)
+        a.grid = [(1.0, (24, 18, 18)), (0.5, (16, 24, 24))]  # the first from the cache
+        return max(status, table(a, comm))
+    if not a.grid:
+        p.error("give at least one --grid GAMMA=N or GAMMA=N1xN2xN3")
+    a.seeds = a.seeds or ([0] if a.study == "resolution" else [0, 1, 2])
+    return resolution_study(a, comm) if a.study == "resolution" else table(a, comm)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
