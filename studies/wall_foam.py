@@ -36,9 +36,9 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
+from foam_rve_study import richardson, summarize
 from mpi4py import MPI
 
-from foam_rve_study import richardson, summarize
 from homogenization import tables
 from meshes.foam import VoronoiFoam
 
@@ -57,6 +57,15 @@ def parse_grid(text: str) -> tuple[float, object]:
         return float(gamma), int(grid)
     except ValueError:
         raise argparse.ArgumentTypeError(f"a grid is GAMMA=N or GAMMA=N1xN2xN3, got {text!r}") from None
+
+
+def parse_seeds(text: str) -> tuple[float, list[int]]:
+    """``'1=0,1,2'`` → ``(1.0, [0, 1, 2])``."""
+    try:
+        gamma, seeds = text.split("=")
+        return float(gamma), [int(s) for s in seeds.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"seeds per γ are GAMMA=S1,S2,..., got {text!r}") from None
 
 
 def settings_for(grid, a) -> tables.SweepSettings:
@@ -90,6 +99,7 @@ def resolution_study(a, comm) -> int:
         s.update(h_x=h[0], aspect=h[1] / h[0], across_x=2 * half / h[0], across_y=2 * half / h[1],
                  iterations=float(np.mean([r["iterations"] for r in members])),
                  wall_s=float(np.mean([r["wall_s"] for r in members])))
+    summary.sort(key=lambda s: (s["gamma"], round(s["aspect"], 6), -s["h_x"]))
     print(f"{'gamma':>5} {'grid':>12} {'aspect':>6} {'across x':>8} {'iters':>6} {'wall s':>7} "
           + " ".join(f"{n:>10}" for n in MODULI))
     for s in summary:
@@ -125,11 +135,12 @@ def table(a, comm) -> int:
     start = time.perf_counter()
     grids = dict(a.grid)
     rows, settings = [], {}
+    seeds = dict(a.gamma_seeds or [])
     for gamma, grid in sorted(grids.items()):
         s = settings_for(grid, a)
-        settings[str(gamma)] = tables.settings_dict(s)
-        rows += tables.run_sweep(tables.grid((a.density,), (gamma,), a.seeds), s, a.cache, comm, threads=1,
-                                 progress=False)
+        settings[str(gamma)] = tables.settings_dict(s) | {"seeds": seeds.get(gamma, a.seeds)}
+        rows += tables.run_sweep(tables.grid((a.density,), (gamma,), seeds.get(gamma, a.seeds)), s, a.cache, comm,
+                                 threads=1, progress=False)
     if comm.rank != 0:
         return 0
     name = settings_for(next(iter(grids.values())), a).name
@@ -166,6 +177,8 @@ def main(argv=None) -> int:
                    help="GAMMA=N (cubic voxels) or GAMMA=N1xN2xN3 (the grid, non-cubic voxels allowed)")
     p.add_argument("--density", type=float, default=0.18)
     p.add_argument("--seeds", type=int, nargs="+", default=None, help="default 0 (resolution), 0 1 2 (table)")
+    p.add_argument("--gamma-seeds", type=parse_seeds, action="append", default=None,
+                   help="GAMMA=S1,S2,...: the seeds of one γ (table; default --seeds)")
     p.add_argument("--cells", type=int, default=8)
     p.add_argument("--tol", type=float, default=1e-3)
     p.add_argument("--maxiter", type=int, default=20000, help="CG iterations per load case")
