@@ -15,8 +15,8 @@ choice, checked by ``resolution``.
 ``resolution``
     Seeds ``--seeds`` (default 0) at every ``--grid`` of each γ; prints the moduli per grid with the voxels across
     a wall along x and y (``2 × half width / h``), and for each family of grids of one voxel aspect with at least
-    three members a Richardson estimate (``q = q0 + c h^p`` through the three finest, :func:`richardson`) with
-    the remaining bias of each level.
+    three members a Richardson estimate (``q = q0 + c h^p`` through the three finest,
+    :func:`homogenization.convergence.richardson`, in the x spacing) with the remaining bias of each level.
 ``table``
     One grid per γ (``--grid``, the last given for a γ wins), seeds ``--seeds`` (default 0 1 2): writes the table
     ``equiaxed_polyhedral`` (:attr:`SweepSettings.name`) with its samples and provenance under ``--out``, and with
@@ -36,13 +36,14 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
-from foam_rve_study import richardson, summarize
+from foam_rve_study import summarize
 from mpi4py import MPI
 
 from homogenization import tables
+from homogenization.convergence import richardson
 from meshes.foam import VoronoiFoam
 
-MODULI = ("E1", "E2", "E3", "G23", "G13", "G12", "ti_E_t", "ti_E_l", "ti_G_l")
+MODULI = ("E1", "E2", "E3", "G23", "G13", "G12", "ti_E_t", "ti_E_l", "ti_G_l", "iso_E")
 
 
 def parse_grid(text: str) -> tuple[float, object]:
@@ -115,13 +116,15 @@ def resolution_study(a, comm) -> int:
         print(f"γ = {gamma}, voxel aspect {aspect:g}: grids {[s['resolution'] for s in family]}")
         for name in MODULI:
             q = np.array([s[name] for s in family])
-            q0, p = richardson(h, q)
+            est = richardson(h, q)
+            q0, p = est.value, est.order
             bias = (q - q0) / q0
-            print(f"  {name:>7}: " + " ".join(f"{v:9.4e}" for v in q) + f" → {q0:9.4e} (p = {p:.2f}); bias "
+            order = f"p = {p:.2f}" if est.asymptotic else f"p = {p:g} assumed: {est.reason}"
+            print(f"  {name:>7}: " + " ".join(f"{v:9.4e}" for v in q) + f" → {q0:9.4e} ({order}); bias "
                   + " ".join(f"{b:+.1%}" for b in bias))
             extrapolated += [{"gamma": gamma, "aspect": aspect, "resolution": s["resolution"], "name": name,
-                              "value": s[name], "extrapolated": q0, "order": p, "bias": float(b)}
-                             for s, b in zip(family, bias, strict=True)]
+                              "value": s[name], "extrapolated": q0, "order": p, "asymptotic": est.asymptotic,
+                              "bias": float(b)} for s, b in zip(family, bias, strict=True)]
     a.out.mkdir(parents=True, exist_ok=True)
     tables.to_csv(rows, a.out / "resolution.csv")
     tables.to_csv(summary, a.out / "resolution_summary.csv")
