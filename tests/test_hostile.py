@@ -442,10 +442,11 @@ FOAM_ARGS = ["--density", "0.3", "--cells", "8", "--resolution", "16", "--thread
     ([*FOAM_ARGS, "--cells", "1"], "--cells must be an integer >= 2, got 1"),
     ([*FOAM_ARGS, "--resolution", "2"], "--resolution must be an integer >= 8, got 2"),
     ([*FOAM_ARGS, "--seed", "-1"], "--seed must be an integer >= 0, got -1"),
-    ([*FOAM_ARGS, "--gamma", "1e-300"], "--gamma 1e-300 --cells 8 --seed 0: gamma=1e-300 is too flat for n_cells=8"),
+    ([*FOAM_ARGS, "--gamma", "1e-300"], "--gamma 1e-300 --cells 8 --seed 0 --box cube --distance euclidean: "
+                                        "gamma=1e-300 is too flat for n_cells=8"),
     ([*FOAM_ARGS, "--gamma", "nan"], "--gamma must be in (0, 1], got nan"),
-    ([*FOAM_ARGS, "--density", "0.9999"], "--density 0.9999 --gamma 1 --cells 8 --seed 0: density 0.9999 is "
-                                          "outside the valid range"),
+    ([*FOAM_ARGS, "--density", "0.9999"], "--density 0.9999 --gamma 1 --cells 8 --seed 0 --box cube "
+                                          "--distance euclidean: density 0.9999 is outside the valid range"),
     ([*FOAM_ARGS, "--E-solid", "1.5e308"], "--E-solid 1.5e+308: the solid's largest stiffness entry inf overflows"),
     ([*FOAM_ARGS, "--E-solid", "1e-310"], "--E-solid 1e-310: the solid's largest stiffness entry 1.35e-310 is a "
                                           "subnormal number"),
@@ -527,7 +528,7 @@ def test_homogenize_writes_the_foam_surface(images, monkeypatch):
     (["--out", "t", "--cache", "victim.txt"], "--cache victim.txt: is a file, not a directory"),
     (["--out", ""], "argument --out: an empty path"),
     (["--out", "t", "--cells", "1"], "--cells: n_cells must be an integer >= 2, got 1"),
-    (["--out", "t", "--resolution", "4"], "--resolution: resolution must be an integer >= 8, got 4"),
+    (["--out", "t", "--resolution", "4"], "--resolution: resolution must be an integer >= 8 (cubic voxels"),
     (["--out", "t", "--densities", "nan"], "--densities must lie in (0, 1)"),
 ])
 def test_table_refuses_bad_arguments_naming_them(work, capsys, monkeypatch, argv, message):
