@@ -18,6 +18,10 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 DEMOS = sorted(p for folder in ("demos", "studies") for p in (ROOT / folder).glob("*.py") if not p.name.startswith("_"))
+# --ci runs of more than about a minute (wall_foam: three polyhedral wall foams built and homogenized) run in
+# `make test-all`; their library paths are tested in the fast suite (test_tables, test_rve_box, test_polyhedral_foam).
+SLOW = {("studies", "wall_foam")}
+CASES = [pytest.param(p, marks=pytest.mark.slow) if (p.parent.name, p.stem) in SLOW else p for p in DEMOS]
 TIMEOUT_S = 900
 
 
@@ -37,7 +41,7 @@ def test_demos_and_studies_are_found():
     assert {("demos", "pipeline.py"), ("studies", "speed_accuracy.py")} <= names
 
 
-@pytest.mark.parametrize("demo", DEMOS, ids=lambda p: f"{p.parent.name}/{p.stem}")
+@pytest.mark.parametrize("demo", CASES, ids=lambda p: f"{p.parent.name}/{p.stem}")
 def test_demo_serial(demo, tmp_path):
     _run([sys.executable, str(demo), "--ci", "--out", str(tmp_path / "out")], cwd=tmp_path)
 
@@ -51,7 +55,7 @@ def test_make_demo_is_quiet(tmp_path):
     assert "all checks passed" in result.stdout
 
 
-@pytest.mark.parametrize("demo", DEMOS, ids=lambda p: f"{p.parent.name}/{p.stem}")
+@pytest.mark.parametrize("demo", CASES, ids=lambda p: f"{p.parent.name}/{p.stem}")
 def test_demo_mpirun(demo, tmp_path):
     _run(["mpirun", "-n", "2", sys.executable, "-m", "mpi4py", str(demo), "--ci", "--out", str(tmp_path / "out")],
          cwd=tmp_path)

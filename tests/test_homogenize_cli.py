@@ -175,6 +175,7 @@ def wall_foam_stiffness(tol: float) -> tuple[np.ndarray, np.ndarray]:
     return C, image
 
 
+@pytest.mark.slow  # two wall-foam builds; the mpi case below runs the same path in the fast suite
 def test_equiaxed_polyhedral_foam_path(tmp_path):
     """--box equiaxed --distance polyhedral homogenizes the wall foam in the box (γ, 1, 1) with cubic voxels: the
     JSON's C is the library's, the box and the foam are recorded."""
