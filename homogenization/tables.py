@@ -305,11 +305,14 @@ def _version() -> str:
         return "unknown"
 
 
-def homogenize_sample(sample: Sample, settings: SweepSettings, threads: int | None = None) -> dict:
+def homogenize_sample(sample: Sample, settings: SweepSettings, threads: int | None = None,
+                      comm=None) -> dict:
     """Build, voxelize and homogenize one foam; return its table row (moduli normalised by E_s = 1).
 
     The TI fit takes the foam's distinct axis x as its *l* axis (docs/conventions.md): ``ti_E_l`` is along x.
-    Raises ``meshes.foam.FoamParameterError`` for a density the foam cannot reach and
+    With ``comm`` of more than one rank the one sample is homogenized by all its ranks together (the distributed
+    FFT of :func:`homogenization.fft.homogenize_fft`, every rank building the same foam); every rank returns the
+    same row. Raises ``meshes.foam.FoamParameterError`` for a density the foam cannot reach and
     ``homogenization.fft.FFTConvergenceError`` when CG does not converge.
     """
     from meshes.foam import VoronoiFoam
@@ -320,7 +323,7 @@ def homogenize_sample(sample: Sample, settings: SweepSettings, threads: int | No
     image = foam.voxelize(settings.resolution, cubic=settings.cubic).astype(np.int8)
     r = homogenize_fft(image, [np.zeros((6, 6)), isotropic_voigt(1.0, NU_SOLID)], scheme=SCHEME,
                        discretization="rotated", tol=settings.tol, threads=threads, box=tuple(foam.box),
-                       maxiter=settings.maxiter)
+                       maxiter=settings.maxiter, comm=comm)
     row = {"density": sample.density, "gamma": sample.gamma, "seed": sample.seed, "distance": settings.distance,
            "box": settings.box, "n_cells": settings.n_cells, "resolution": _resolution_label(settings),
            "tol": settings.tol,
@@ -336,7 +339,8 @@ def homogenize_sample(sample: Sample, settings: SweepSettings, threads: int | No
 
 
 def run_sweep(samples: Sequence[Sample], settings: SweepSettings, cache_dir: str | os.PathLike, comm=None, *,
-              threads: int | None = None, progress: bool = True, stop_after: int | None = None) -> list[dict] | None:
+              threads: int | None = None, progress: bool = True, stop_after: int | None = None,
+              distribute: str = "samples") -> list[dict] | None:
     """Homogenize every sample not yet in ``cache_dir``; return all rows (sorted) on every rank.
 
     Parameters
@@ -348,7 +352,11 @@ def run_sweep(samples: Sequence[Sample], settings: SweepSettings, cache_dir: str
     cache_dir
         One JSON file per finished sample (:func:`cache_name`); usable entries are read, never recomputed.
     comm
-        MPI communicator (default ``MPI.COMM_WORLD``); samples are dealt round-robin to its ranks.
+        MPI communicator (default ``MPI.COMM_WORLD``).
+    distribute
+        ``"samples"``: the samples are dealt round-robin to the ranks, each computed by one rank (the cheapest
+        for many small samples); ``"fft"``: every sample is computed by all ranks together (the distributed FFT,
+        for a sample too slow or too large for one rank); rank 0 writes its cache entry.
     threads
         FFTW threads per rank (default: the process's CPUs divided by the number of ranks).
     progress
@@ -366,23 +374,33 @@ def run_sweep(samples: Sequence[Sample], settings: SweepSettings, cache_dir: str
     cache.mkdir(parents=True, exist_ok=True)
     threads = threads_per_rank(comm) if threads is None else threads
     entry = {s: cache / cache_name(s, settings) for s in samples}
-    mine = [s for s in list(samples)[comm.rank::comm.size] if read_cache_entry(entry[s], s, settings) is None]
+    if distribute not in ("samples", "fft"):
+        raise InputError(f"distribute must be 'samples' or 'fft', got {distribute!r}")
+    together = distribute == "fft" and comm.size > 1
+    if together:  # one list on every rank, in the same order: every rank takes part in every sample
+        mine = comm.bcast([s for s in samples if read_cache_entry(entry[s], s, settings) is None]
+                          if comm.rank == 0 else None, root=0)
+    else:
+        mine = [s for s in list(samples)[comm.rank::comm.size] if read_cache_entry(entry[s], s, settings) is None]
     if stop_after is not None:
         mine = mine[:stop_after]
     failures = []
     bar = tqdm(mine, desc=f"foam samples (rank 0 of {comm.size})", unit="sample",
                disable=None if progress and comm.rank == 0 else True)  # None: shown only on a terminal
     for sample in bar:
+        writer = comm.rank == 0 or not together
         try:
-            row = homogenize_sample(sample, settings, threads)
+            row = homogenize_sample(sample, settings, threads, comm=comm if together else None)
         except Exception as exc:  # recorded and reported below on every rank, never swallowed
             message = f"{sample}: {type(exc).__name__}: {exc}"
-            log.warning("foam sample failed, the sweep goes on with the others: %s", message)
-            write_text_atomic(_failure_record(entry[sample]), message + "\n")
-            failures.append((message, exit_code(exc)))
+            if writer:
+                log.warning("foam sample failed, the sweep goes on with the others: %s", message)
+                write_text_atomic(_failure_record(entry[sample]), message + "\n")
+                failures.append((message, exit_code(exc)))
             continue
-        write_json_atomic(entry[sample], row, indent=1)
-        _failure_record(entry[sample]).unlink(missing_ok=True)
+        if writer:
+            write_json_atomic(entry[sample], row, indent=1)
+            _failure_record(entry[sample]).unlink(missing_ok=True)
     failures = [f for rank_failures in comm.allgather(failures) for f in rank_failures]
     if failures:
         error = ComputationError(f"foam sweep: {len(failures)} sample(s) failed, recorded as *.failed.txt in "

@@ -23,8 +23,9 @@ choice, checked by ``resolution``.
     ``--ship`` into ``homogenization/data``. Exits 1 if a sample misses its density by more than 0.002.
 
 Run: ``OMP_NUM_THREADS=1 python studies/wall_foam.py table --grid 0.1=60x300x300 --grid 1=96 --cache
-out/wall-cache --out out/wall-table`` (``mpirun -n 2`` deals the samples to two ranks). ``--ci``: both studies on
-tiny samples (4 cells, 45 %).
+out/wall-cache --out out/wall-table`` (``mpirun -n 2`` deals the samples to two ranks; with ``--distribute fft``
+each sample is computed by both ranks together, for a grid too slow for one). ``--ci``: both studies on tiny
+samples (4 cells, 45 %).
 """
 
 from __future__ import annotations
@@ -86,7 +87,7 @@ def resolution_study(a, comm) -> int:
     rows = []
     for gamma, grid in a.grid:
         rows += tables.run_sweep(tables.grid((a.density,), (gamma,), a.seeds), settings_for(grid, a), a.cache, comm,
-                                 threads=1, progress=False)
+                                 threads=1, progress=False, distribute=a.distribute)
     if comm.rank != 0:
         return 0
     rows = [r | {"resolution": str(r["resolution"])} for r in rows]  # N or 'N1xN2xN3', one type to sort
@@ -143,7 +144,7 @@ def table(a, comm) -> int:
         s = settings_for(grid, a)
         settings[str(gamma)] = tables.settings_dict(s) | {"seeds": seeds.get(gamma, a.seeds)}
         rows += tables.run_sweep(tables.grid((a.density,), (gamma,), seeds.get(gamma, a.seeds)), s, a.cache, comm,
-                                 threads=1, progress=False)
+                                 threads=1, progress=False, distribute=a.distribute)
     if comm.rank != 0:
         return 0
     name = settings_for(next(iter(grids.values())), a).name
@@ -186,6 +187,9 @@ def main(argv=None) -> int:
     p.add_argument("--tol", type=float, default=1e-3)
     p.add_argument("--maxiter", type=int, default=20000, help="CG iterations per load case")
     p.add_argument("--ship", action="store_true", help="table: also write it into homogenization/data")
+    p.add_argument("--distribute", choices=("samples", "fft"), default="samples",
+                   help="under mpirun: deal the samples to the ranks (default) or compute each sample on all ranks "
+                        "together (the distributed FFT, for one large grid)")
     p.add_argument("--ci", action="store_true", help="both studies on tiny samples (seconds)")
     a = p.parse_args(argv)
     a.cache = a.cache or a.out / "cache"

@@ -253,6 +253,25 @@ def test_sweep_distributed_over_ranks_matches_serial(tmp_path):
         assert _strip_time(rows) == _strip_time(serial)
 
 
+@ONE_RANK_SKIP
+@pytest.mark.mpi
+def test_sweep_with_each_sample_distributed_matches_serial(tmp_path):
+    """distribute="fft": every sample computed by all ranks together (slabs of the FFT grid) gives the serial
+    row to the solver's round-off, and one cache entry per sample; a bad mode is refused."""
+    comm = MPI.COMM_WORLD
+    cache = comm.bcast(tmp_path if comm.rank == 0 else None)
+    samples = tables.grid((0.3,), (1.0,), (0, 1))
+    rows = tables.run_sweep(samples, TINY, cache / "fft", comm, progress=False, distribute="fft")
+    if comm.rank == 0:
+        assert len(list((cache / "fft").glob("*.json"))) == 2
+        serial = tables.run_sweep(samples, TINY, cache / "serial", MPI.COMM_SELF, progress=False)
+        for got, want in zip(rows, serial, strict=True):
+            np.testing.assert_allclose([got[c] for c in tables.C_ENTRIES], [want[c] for c in tables.C_ENTRIES],
+                                       rtol=0, atol=1e-9 * want["C11"])
+    with pytest.raises(ValueError, match=r"distribute must be 'samples' or 'fft', got 'ranks'"):
+        tables.run_sweep(samples, TINY, cache / "fft", comm, progress=False, distribute="ranks")
+
+
 def _rows_at(table, keep):
     names = list(table)
     idx = [i for i in range(len(table["density"])) if keep(table["density"][i], table["gamma"][i])]
