@@ -328,6 +328,28 @@ def test_shipped_equiaxed_table_is_resolved_and_read_by_name():
                                    rtol=1e-10)
 
 
+def test_shipped_wall_table_is_resolved_and_read_by_name():
+    """The `equiaxed_polyhedral` table (the wall foam the beam scenes read): 8 cells in the box (γ, 1, 1), 3 seeds
+    per node, every wall at least 3 voxels across along x (the x spacing resolves the γ = 0.1 walls, sheets
+    nearly normal to x), every sample at its density; foam_material(table=...) returns its rows exactly."""
+    name = "equiaxed_polyhedral"
+    assert name in tables.shipped_tables()
+    paths = tables.table_paths(name)
+    samples, table = tables.read_csv(paths["samples"]), tables.read_csv(paths["table"])
+    assert set(samples["box"]) == {"equiaxed"} and set(samples["distance"]) == {"polyhedral"}
+    assert set(samples["n_cells"]) == {8}
+    for gamma, radius, grid in zip(samples["gamma"], samples["radius"], samples["resolution"], strict=True):
+        shape = [int(float(n)) for n in str(grid).split("x")]
+        nx = shape[0] if len(shape) == 3 else round(float(shape[0]) * gamma)  # N along the longest edge, 1
+        assert 2 * radius * nx / gamma >= 3.0, (gamma, grid)
+    assert np.all(np.abs(samples["measured_density"] - samples["density"]) < 0.002)
+    assert np.all(table["n_seeds"] >= 3)
+    for i in range(len(table["density"])):
+        m = foam_material(table["density"][i], table["gamma"][i], E_TPU, 0.3, table=name)
+        expected = [E_TPU * table[k][i] for k in ("ti_E_t", "ti_E_l", "ti_G_l")]
+        np.testing.assert_allclose([m.E_t, m.E_l, m.G_l], expected, rtol=1e-10)
+
+
 def test_resolution_for_strut_is_the_smallest_admissible_grid():
     """N reaches the requested voxels across the strut and N − step does not; the step gives cubic voxels (γN an
     integer); with multiple=10 it reproduces the shipped `equiaxed` table's grids (3.85 voxels across, seed 0)."""

@@ -82,7 +82,8 @@ def resolve_material(region: Region):
             spec = region.parameters[key]
             for value in spec.get("per_tag", {}).values() if isinstance(spec, dict) else ():
                 foam_material(value if key == "density" else density, value if key == "gamma" else gamma,
-                              params["E_solid"], params["nu_solid"], **{k: params[k] for k in ("rho_solid", "fit")})
+                              params["E_solid"], params["nu_solid"],
+                              **{k: params[k] for k in ("rho_solid", "fit", "table") if k in params})
         return foam_material(density, gamma, params.pop("E_solid"), params.pop("nu_solid"), **params)
     except (InadmissibleMaterialError, ValueError) as exc:
         if isinstance(exc, SceneError):
