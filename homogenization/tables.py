@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import csv
 import hashlib
+import io
 import json
 import logging
 import math
@@ -445,14 +446,19 @@ def format_table(table: Sequence[dict]) -> str:
 
 
 def to_csv(rows: Sequence[dict], path: str | os.PathLike) -> Path:
-    """Write rows (dicts with the same keys) as CSV, atomically."""
+    """Write rows (dicts with the same keys) as CSV, atomically.
+
+    Floats are written with ``repr`` (they read back exactly); a text field holding a comma, a quote or a line break
+    is quoted (RFC 4180), so :func:`read_csv` and any CSV reader get the same columns back.
+    """
     path = Path(path)
     columns = list(rows[0])
-    lines = [",".join(columns)]
-    for row in rows:
-        lines.append(",".join(repr(row[c]) if isinstance(row[c], float) else str(row[c]) for c in columns))
+    text = io.StringIO()
+    writer = csv.writer(text, lineterminator="\n")
+    writer.writerow(columns)
+    writer.writerows([repr(row[c]) if isinstance(row[c], float) else str(row[c]) for c in columns] for row in rows)
     path.parent.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(path, "\n".join(lines) + "\n")
+    write_text_atomic(path, text.getvalue())
     return path
 
 

@@ -401,3 +401,11 @@ def test_non_cubic_sweep_settings_are_an_explicit_opt_in_with_their_own_entries(
 def test_bad_grids_are_named(kwargs, match):
     with pytest.raises(ValueError, match=match):
         tables.SweepSettings(**kwargs)
+
+
+def test_csv_round_trips_text_with_commas_and_floats_exactly(tmp_path):
+    note = 'stopped at 96.9 %: DIVERGED_MAX_IT, "elliptic", margin 359 Pa'
+    rows = [{"name": "beam_ti_z", "note": note, "x": 0.1 + 0.2}, {"name": "plain", "note": "", "x": -1e-300}]
+    back = tables.read_csv(tables.to_csv(rows, tmp_path / "t.csv"))
+    assert list(back["note"]) == [r["note"] for r in rows] and list(back["name"]) == ["beam_ti_z", "plain"]
+    assert list(back["x"]) == [0.1 + 0.2, -1e-300]
