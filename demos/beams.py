@@ -36,16 +36,22 @@
 # respectively"; blue: real −48, simulated −47.2 mm; red (l along z): −24 / −22.2 mm; green (l along y):
 # −23 / −19.1 mm. Nothing here is tuned to these numbers. The real measurements are the ground truth.
 #
-# *What holds today.* Our beams sag 1.6–3.0 times the real beams: the tabulated foam is softer than the
-# paper's. The check below asserts that ratio in the band `SAG_RATIO_BAND` = [0.5, 3.5]: it documents today's
-# over-prediction plainly (it is not an agreement) and fails on a regression beyond it; it should be
-# tightened as the foam model improves. The ordering of Fig. 6 (the γ = 0.1 beams sag less than the isotropic
-# one) does hold and is asserted.
+# *What holds today.* The beam scenes read the wall-foam table (`table = "equiaxed_polyhedral"`: walls one track
+# wide along a polyhedral Voronoi diagram, a representative RVE, docs/foam.md). With the datasheet E_s = 12 MPa
+# the beams sag about twice as much as the real ones (the voxelized walls are too soft, and the printed solid's
+# modulus is not the filament's datasheet value; `demos/experiments.py` calibrates it on the isotropic beam), so
+# the check below keeps that ratio in the band `SAG_RATIO_BAND` = [0.5, 3.0]: it documents the over-prediction
+# plainly (it is not an agreement) and fails on a regression beyond it. What depends little on E_s is the
+# foam's anisotropy: the l-along-y beam bends in the foam's stiff transverse plane, and tip(TI-y) / tip(iso) is
+# asserted within `ANISOTROPY_TOLERANCE` (15 %) of the real beams' 23 / 48 = 0.479. Fig. 6's ordering (the γ = 0.1
+# beams sag less than the isotropic one) is asserted too.
 #
-# At full size the l-along-z beam (shear modulus G_l = 6.8 kPa in the x–z plane) stops before full gravity:
-# its compressed bottom fibres near the clamp reach σ_xx ≈ −2 G_l, where the corotational TI tangent loses
-# strong ellipticity (kink-band micro-buckling, `fenicsfoam.stability`). Such a stop is a result of the model,
-# reported with the load factor reached and the diagnosis; an undiagnosed failure is an error.
+# The l-along-z beam bends in shear across its l axis (G_l = 0.00107 E_s = 12.8 kPa at 12 MPa): its compressed
+# bottom fibres near the clamp come close to σ_xx ≈ −2 G_l, where the corotational TI tangent loses strong
+# ellipticity (kink-band micro-buckling, `fenicsfoam.stability`), so it sags far more than the linear estimate and
+# may stop just before full gravity (at the --ci mesh, or at P2). Such a stop is a result of the model, reported
+# with the load factor reached and the diagnosis; an undiagnosed failure is an error. Its ratio is therefore not
+# asserted here; with the calibrated E_s it is compared with the real beam (`demos/experiments.py`).
 #
 # Run: `python demos/beams.py --out out/beams [--ci]`, also under `mpirun -n 2`.
 
@@ -60,8 +66,10 @@ from mpi4py import MPI
 from fenicsfoam.scene import run_scene
 from fenicsfoam.solver import ConvergenceError
 
-#: Our sag / the real beam's sag: measured 2.6 (iso) and 3.0 (TI-y) at the paper's mesh, 1.6–2.2 at --ci.
-SAG_RATIO_BAND = (0.5, 3.5)
+#: Our sag / the real beam's sag: measured 1.94 (iso), 1.86 (TI-y), 2.44 (TI-z) at the paper's mesh.
+SAG_RATIO_BAND = (0.5, 3.0)
+#: |tip(TI-y)/tip(iso) / (23/48) − 1| allowed: measured 4 % (P1, the paper's mesh) and 2 % (P2).
+ANISOTROPY_TOLERANCE = 0.15
 #: --ci mesh size (m): 688 tetrahedra instead of 20.7k.
 CI_H = 0.0075
 
@@ -118,6 +126,7 @@ def table(results: dict) -> str:
 # - the γ = 0.1 beams that reach full gravity, stiff across their l axis, sag less than the isotropic one, as
 #   in Fig. 6;
 # - our sag / the real beam's sag lies in `SAG_RATIO_BAND` (today's over-prediction, see above);
+# - tip(TI-y) / tip(iso) is within `ANISOTROPY_TOLERANCE` of the real beams' ratio;
 # - a beam may instead stop at a diagnosed material instability after carrying some load; any other failure,
 #   and a failure of the isotropic beam, fails the demo.
 
@@ -141,6 +150,11 @@ def check(results: dict) -> list[str]:
                  for name in ("beam_ti_y", "beam_ti_z") if name in tips and not tips[name] > tips["beam_iso"]]
     for name, tip in tips.items():
         failures += ratio_check(name, tip, PAPER_MM[name][0], SAG_RATIO_BAND, "tip deflection (mm) vs the real beam")
+    if "beam_ti_y" in tips:
+        real = PAPER_MM["beam_ti_y"][0] / PAPER_MM["beam_iso"][0]
+        tolerance = (1 - ANISOTROPY_TOLERANCE, 1 + ANISOTROPY_TOLERANCE)
+        failures += ratio_check("beam_ti_y", tips["beam_ti_y"] / tips["beam_iso"], real, tolerance,
+                                "tip(TI-y) / tip(iso) vs the real beams'")
     return failures
 
 

@@ -377,17 +377,17 @@ def test_non_convergence_writes_the_steps_done_and_raises(tmp_path):
 
 
 def test_foam_regions_call_foam_material_with_the_scene_values(monkeypatch):
-    """The contract with the tables: foam_material(density, gamma, E_solid, nu_solid, rho_solid=, fit=)."""
+    """The contract with the tables: foam_material(density, gamma, E_solid, nu_solid, rho_solid=, fit=, table=)."""
     calls = []
 
-    def recording_foam_material(density, gamma, E_solid, nu_solid, *, rho_solid=0.0, fit="transverse"):
-        calls.append((density, gamma, E_solid, nu_solid, rho_solid, fit))
+    def recording_foam_material(density, gamma, E_solid, nu_solid, *, rho_solid=0.0, fit="transverse", table=None):
+        calls.append((density, gamma, E_solid, nu_solid, rho_solid, fit, table))
         return materials.Isotropic(E=E_solid * density**2, nu=0.3, rho=rho_solid * density)
 
     monkeypatch.setattr(materials, "foam_material", recording_foam_material, raising=False)
     scene = tomllib.loads((SCENES / "beam_iso.toml").read_text())
     scene["geometry"]["h"] = COARSE_BEAM_H
     result = run_scene(scene, comm=MPI.COMM_SELF)
-    assert calls == [(0.18, 1.0, 12e6, 0.3, 1190.0, "isotropic")]
+    assert calls == [(0.18, 1.0, 12e6, 0.3, 1190.0, "isotropic", "equiaxed_polyhedral")]
     assert result.materials["beam"] == {"type": "Isotropic", "E": 12e6 * 0.18**2, "nu": 0.3,
                                         "rho": pytest.approx(1190.0 * 0.18)}
