@@ -278,6 +278,48 @@ def test_a_malformed_table_record_is_named(tmp_path, record):
         parse_scene(beam_taking(path))
 
 
+def test_two_tables_two_calibrations_each_scene_takes_its_own(tmp_path, monkeypatch):
+    """demos/experiments.py calibrates the beam once per foam table. With the linear model the tip sag is
+    proportional to 1 / (E_s · q) (q: the table's iso_E at 18 %, γ = 1; the two tables' ν differ by 0.001), so the
+    two calibrated E_s differ by the tables' ratio of q (11 %) while E_s · q agrees; each scene then runs with the
+    calibration of the table its foam reads, and the other table's calibration is refused."""
+    from fenicsfoam.materials import foam_material
+
+    monkeypatch.syspath_prepend(str(SCENES.parent))
+    import experiments
+    base = beam("linear")
+    cals = experiments.calibrate_tables(base, ["cube", "equiaxed"], tmp_path, MPI.COMM_SELF)
+    q = {t: foam_material(0.18, 1.0, 1.0, 0.3, fit="isotropic", table=t).E for t in cals}
+    assert cals["equiaxed"].E_solid / cals["cube"].E_solid == pytest.approx(q["cube"] / q["equiaxed"], rel=2e-3)
+    assert abs(cals["equiaxed"].E_solid / cals["cube"].E_solid - 1) > 0.05
+    for t, cal in cals.items():
+        assert cal.achieved == pytest.approx(experiments.CALIBRATION[3], rel=1e-8)
+        assert [r["table"] for r in cal.foam_tables] == [t]
+    files = {t: d / "calibration.json" for t, d in experiments.calibration_dirs(tmp_path, list(cals)).items()}
+    assert [read_calibration(files[t]) for t in cals] == [cal.E_solid for cal in cals.values()]
+
+    load = experiments.load_scene_dict
+
+    def beams_equiaxed(name, **kwargs):  # the beams on another table than the Tripods, as the experiments will
+        data = load(name, **kwargs)
+        if name.startswith("beam"):
+            data["regions"]["beam"]["table"] = "equiaxed"
+        return data
+
+    monkeypatch.setattr(experiments, "load_scene_dict", beams_equiaxed)
+    names = ("beam_ti_y", "tripod_case_b")
+    assert experiments.scene_tables([experiments.scene(n, True, 1) for n in names]) == ["equiaxed", "cube"]
+    for name, table in zip(names, ("equiaxed", "cube")):
+        data = experiments.scene(name, True, 1, files)
+        assert experiments.scene_E_solid(data) == cals[table].E_solid
+        assert {r.parameters["E_solid"] for r in parse_scene(data).regions if r.material == "foam"} == {
+            cals[table].E_solid}
+    wrong = experiments.scene("beam_ti_y", True, 1, {"equiaxed": files["cube"]})
+    with pytest.raises(SceneError, match=r"region 'beam' reads foam table 'equiaxed', but .* through foam table "
+                                         r"'cube'"):
+        parse_scene(wrong)
+
+
 # --------------------------------------------------------------------------------------------------
 # fenicsfoam calibrate
 # --------------------------------------------------------------------------------------------------
