@@ -417,6 +417,8 @@ def _calibrate_run(args) -> int:
             f" relative to {calibration.relative_to}" if calibration.relative_to else "")
         print(f"E_solid = {calibration.E_solid:.10g} Pa: {what} = {calibration.achieved:.10g} "
               f"(target {calibration.target:.10g}) in {calibration.runs} runs ({calibration.method})")
+        print("through foam table " + " and ".join(repr(t["table"]) for t in calibration.foam_tables)
+              + " (a scene's foam region takes it only if it reads that table)")
         print(f"written: {Path(args.out) / CALIBRATION_JSON}")
     return 0
 

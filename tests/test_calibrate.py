@@ -349,7 +349,8 @@ def test_cli_recovers_a_known_E_solid_and_writes_calibration_json(tmp_path, caps
     assert written["E_solid"] == pytest.approx(E_TRUE, rel=1e-6)
     assert written["achieved"] == pytest.approx(target, rel=1e-6) and written["target"] == target
     assert written["probe"] == "tip_deflection" and written["runs"] == 3 and written["E_solid_initial"] == 12e6
-    assert "E_solid = " in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "E_solid = " in printed and "through foam table 'cube'" in printed
 
 
 @pytest.mark.parametrize("argv, message", [
