@@ -5,10 +5,19 @@ the one scalar ``E_solid``, shared by every foam region of a scene, for which a 
 measured value (e.g. the Fig. 6 isotropic beam's tip deflection, −48 mm). Every other quantity is then a
 prediction. The result is written as ``calibration.json``::
 
-    {"E_solid": 3.1e7, "probe": "tip_deflection", "target": -0.048, "achieved": -0.048, "runs": 3, ...}
+    {"E_solid": 3.1e7, "probe": "tip_deflection", "target": -0.048, "achieved": -0.048, "runs": 3, ...,
+     "foam_tables": [{"table": "cube", "sha256": "9f2c…", "regions": ["beam"]}]}
 
 and a scene takes it with ``E_solid = {calibration = "calibration.json"}`` in a foam region (path relative to the
 scene file), read by :func:`read_calibration`.
+
+Foam tables. The calibrated ``E_solid`` absorbs the bias of the foam table its scene's foam regions read (the same
+measurement gives another modulus through another table), so ``foam_tables`` records those tables (the label, a
+shipped name or a CSV path, and the SHA-256 of the table file; :func:`foam_table_records`), and a region that takes
+the calibration must read one of them (compared by content, :func:`check_calibration_table`): otherwise the scene is
+refused with an error naming the region, both tables and what to do, calibrate through the region's table. A file
+without ``foam_tables`` (written before the record existed) is taken as calibrated through the default table
+:data:`LEGACY_TABLE`, ``"cube"``.
 
 Method. A foam's moduli are proportional to ``E_solid`` (its mass is not), so with the linear model the
 displacement is exactly ``u = u_D + u_f / E_solid`` (``u_D``: the response to prescribed motions, ``u_f``: to
@@ -48,7 +57,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from fenicsfoam.scene.calibration import CalibrationError, read_calibration
+from fenicsfoam.scene.calibration import (
+    LEGACY_TABLE,
+    CalibrationError,
+    calibration_tables,
+    check_calibration_table,
+    foam_table_records,
+    read_calibration,
+)
 from foambase.files import write_json_atomic
 
 __all__ = [
@@ -58,7 +74,11 @@ __all__ = [
     "CALIBRATE",
     "Calibration",
     "CalibrationError",
+    "LEGACY_TABLE",
     "calibrate_E_solid",
+    "calibration_tables",
+    "check_calibration_table",
+    "foam_table_records",
     "read_calibration",
     "scene_with_E_solid",
     "write_calibration",
@@ -93,13 +113,15 @@ class Calibration:
     E_solid_initial: float = math.nan  #: the scene's own E_solid (Pa), the search's starting point
     history: tuple[tuple[float, float], ...] = field(default_factory=tuple)  #: (E_solid, probe) of every run
     component: str | None = None      #: the component matched of a vector probe (``"x"``, ``"y"``, ``"z"``)
+    #: the foam tables the scene's foam regions read: ``{"table": label, "sha256": digest, "regions": [names]}``
+    foam_tables: tuple[dict[str, Any], ...] = field(default_factory=tuple)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict: ``E_solid``, ``probe``, ``target``, ``achieved``, ``runs`` and the details."""
         return {"E_solid": self.E_solid, "probe": self.probe, "component": self.component, "target": self.target,
                 "achieved": self.achieved, "runs": self.runs, "step": self.step, "relative_to": self.relative_to,
                 "method": self.method, "scene": self.scene, "E_solid_initial": self.E_solid_initial,
-                "history": [list(h) for h in self.history]}
+                "history": [list(h) for h in self.history], "foam_tables": [dict(t) for t in self.foam_tables]}
 
 
 def _load_raw(source) -> tuple[dict[str, Any], Path | None]:
@@ -324,7 +346,9 @@ def calibrate_E_solid(source, probe: str, step: str, target: float, *, relative_
         achieved = value(E)
     calibration = Calibration(E_solid=float(E), probe=probe, step=step, target=target, achieved=float(achieved),
                               runs=len(runs.values), relative_to=relative_to, method=method, scene=scene.name,
-                              E_solid_initial=float(E0), history=runs.history, component=component)
+                              E_solid_initial=float(E0), history=runs.history, component=component,
+                              foam_tables=tuple(foam_table_records((r.name, r.parameters.get("table"))
+                                                                   for r in scene.regions if r.material == "foam")))
     logger.info("calibrated E_solid = %.10g Pa (%s = %.10g, target %.10g) in %d runs", calibration.E_solid, probe,
                 calibration.achieved, target, calibration.runs)
     if out_dir is not None:
@@ -393,6 +417,8 @@ def _calibrate_run(args) -> int:
             f" relative to {calibration.relative_to}" if calibration.relative_to else "")
         print(f"E_solid = {calibration.E_solid:.10g} Pa: {what} = {calibration.achieved:.10g} "
               f"(target {calibration.target:.10g}) in {calibration.runs} runs ({calibration.method})")
+        print("through foam table " + " and ".join(repr(t["table"]) for t in calibration.foam_tables)
+              + " (a scene's foam region takes it only if it reads that table)")
         print(f"written: {Path(args.out) / CALIBRATION_JSON}")
     return 0
 

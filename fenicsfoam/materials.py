@@ -238,18 +238,11 @@ def foam_material(density: float, gamma: float, E_solid: float, nu_solid: float,
         ``Path``, or a string ending in ``.csv``).
 
     """
-    from homogenization.tables import NU_SOLID, shipped_tables, table_paths
+    from homogenization.tables import NU_SOLID, resolve_table
 
     if fit not in FOAM_FITS:
         raise InputError(f"fit must be one of {FOAM_FITS}, got {fit!r}")
-    if table is None:
-        table, label = table_paths("cube")["table"], "cube"
-    elif isinstance(table, str) and not table.endswith(".csv"):
-        if table not in shipped_tables():
-            raise InputError(f"table = {table!r} is not a shipped foam table {shipped_tables()} nor a .csv path")
-        table, label = table_paths(table)["table"], table
-    else:
-        label = str(table)
+    label, table = resolve_table(table)
     if not (np.isfinite(E_solid) and E_solid > 0):
         raise InadmissibleMaterialError(f"E_solid must be > 0 Pa, got {E_solid!r}")
     if not (np.isfinite(rho_solid) and rho_solid >= 0):

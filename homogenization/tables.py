@@ -299,6 +299,34 @@ def shipped_tables() -> tuple[str, ...]:
     return tuple(sorted(names))
 
 
+def resolve_table(table: str | os.PathLike | None = None) -> tuple[str, Path]:
+    """A foam table as ``foam_material(table=)`` and a scene's ``table`` key take it: its label and its file.
+
+    ``None`` is the default, ``"cube"``; a string not ending in ``.csv`` names a shipped table
+    (:func:`shipped_tables`, its aggregated file :func:`table_paths`); anything else is the path of an aggregated
+    table CSV, labelled by the path as given. Raises :class:`~foambase.errors.InputError` for an unknown name.
+    """
+    if table is None:
+        table = "cube"
+    if isinstance(table, str) and not table.endswith(".csv"):
+        if table not in shipped_tables():
+            raise InputError(f"table = {table!r} is not a shipped foam table {shipped_tables()} nor a .csv path")
+        return table, table_paths(table)["table"]
+    return str(table), Path(table)
+
+
+def table_sha256(table: str | os.PathLike | None = None) -> str:
+    """SHA-256 (hex) of a foam table's file (:func:`resolve_table`): a regenerated table has another digest.
+
+    Raises :class:`~foambase.errors.InputError` naming the file when it cannot be read.
+    """
+    label, path = resolve_table(table)
+    try:
+        return hashlib.sha256(path.read_bytes()).hexdigest()
+    except OSError as exc:
+        raise InputError(f"foam table {label!r}: cannot read {str(path)!r} ({exc.strerror})") from exc
+
+
 def _version() -> str:
     try:
         return metadata.version("fenicsfoam")

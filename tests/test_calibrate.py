@@ -1,11 +1,15 @@
 """Calibration of E_solid: a known modulus is recovered from a synthetic target (a scene run at that modulus),
-unreachable targets and bad requests raise errors naming the value, the calibration file round-trips.
+unreachable targets and bad requests raise errors naming the value, the calibration file round-trips with the
+foam tables it was calibrated through, and a region reading another table refuses it.
 
 The scenes are the shipped Fig. 6 isotropic foam beam and Tripod case B at coarse meshes.
 """
 
+import hashlib
 import json
 import math
+import re
+import shutil
 import tomllib
 from pathlib import Path
 
@@ -16,10 +20,13 @@ import fenicsfoam.scene
 from fenicsfoam.calibrate import (
     CalibrationError,
     calibrate_E_solid,
+    calibration_tables,
+    foam_table_records,
     read_calibration,
     scene_with_E_solid,
 )
-from fenicsfoam.scene import run_scene
+from fenicsfoam.scene import SceneError, parse_scene, run_scene
+from homogenization.tables import table_paths
 
 SCENES = Path(__file__).resolve().parents[1] / "demos" / "scenes"
 COARSE_BEAM_H = 0.0075   # 688 tets
@@ -55,6 +62,9 @@ def test_recovers_a_known_E_solid_on_the_beam(model, tmp_path):
     assert {"E_solid", "probe", "target", "achieved", "runs"} <= set(written)
     assert written["E_solid"] == cal.E_solid and written["runs"] == cal.runs
     assert read_calibration(tmp_path / "calibration.json") == cal.E_solid
+    cube = {"table": "cube", "sha256": hashlib.sha256(table_paths("cube")["table"].read_bytes()).hexdigest(),
+            "regions": ["beam"]}
+    assert written["foam_tables"] == [cube] and calibration_tables(tmp_path / "calibration.json") == [cube]
 
 
 def test_recovers_a_known_E_solid_from_a_component_of_a_group_probe():
@@ -192,6 +202,125 @@ def test_a_scene_takes_E_solid_from_a_calibration_file(tmp_path):
 
 
 # --------------------------------------------------------------------------------------------------
+# The foam tables a calibration was made through
+# --------------------------------------------------------------------------------------------------
+def calibration_through(directory, *tables, E_solid=E_TRUE):
+    """A calibration file recording ``tables`` (as ``calibrate_E_solid`` records them), and its path."""
+    path = directory / "calibration.json"
+    record = foam_table_records((f"r{i}", table) for i, table in enumerate(tables))
+    path.write_text(json.dumps({"E_solid": E_solid, "probe": "tip_deflection", "foam_tables": record}))
+    return path
+
+
+def beam_taking(path, table=None):
+    """The coarse beam whose region reads ``table`` (None: no key, the default) and takes E_solid from ``path``."""
+    scene = beam()
+    scene["regions"]["beam"]["E_solid"] = {"calibration": str(path)}
+    if table is not None:
+        scene["regions"]["beam"]["table"] = str(table)
+    return scene
+
+
+@pytest.mark.parametrize("recorded, read", [
+    (["cube"], None), (["equiaxed"], "equiaxed"), (["cube", "equiaxed"], "copy-of-cube"),
+    (["cube"], "equiaxed"), (["equiaxed"], None), (["equiaxed"], "cube")])
+def test_a_region_reading_its_calibration_table_takes_it(tmp_path, recorded, read):
+    """The region's table among the recorded ones: the modulus is taken (tables are compared by content: a CSV
+    copy of a recorded table is that table); another table: refused, naming the region and both tables."""
+    copy = tmp_path / "copy-of-cube.csv"
+    shutil.copyfile(table_paths("cube")["table"], copy)
+    read = copy if read == "copy-of-cube" else read
+    path = calibration_through(tmp_path, *recorded)
+    scene = beam_taking(path, read)
+    if (read or "cube") in recorded or read == copy:
+        assert parse_scene(scene).regions[0].parameters["E_solid"] == E_TRUE
+        return
+    theirs = recorded[0]
+    mine = read or "cube"
+    with pytest.raises(SceneError, match=rf"regions\.beam\.E_solid\.calibration: region 'beam' reads foam table "
+                                         rf"'{mine}', but calibration file .* was calibrated through foam table "
+                                         rf"'{theirs}': .*Calibrate through '{mine}'"):
+        parse_scene(scene)
+
+
+def test_a_calibration_file_without_its_tables_is_the_default_tables(tmp_path):
+    """An older file without `foam_tables`: calibrated through `cube`, so an `equiaxed` region refuses it."""
+    path = tmp_path / "calibration.json"
+    path.write_text(json.dumps({"E_solid": E_TRUE, "probe": "tip_deflection"}))
+    assert [r["table"] for r in calibration_tables(path)] == ["cube"]
+    assert parse_scene(beam_taking(path)).regions[0].parameters["E_solid"] == E_TRUE
+    with pytest.raises(SceneError, match=r"reads foam table 'equiaxed', but .* through foam table 'cube' \(a "
+                                         r"calibration file without a 'foam_tables' record is taken as calibrated "
+                                         r"through the default table 'cube'\)"):
+        parse_scene(beam_taking(path, "equiaxed"))
+
+
+def test_a_table_regenerated_since_the_calibration_is_refused(tmp_path):
+    table = tmp_path / "table.csv"
+    shutil.copyfile(table_paths("equiaxed")["table"], table)
+    path = calibration_through(tmp_path, table)
+    assert parse_scene(beam_taking(path, table)).regions[0].parameters["E_solid"] == E_TRUE
+    rows = table.read_text().splitlines()
+    header, first = rows[0].split(","), rows[1].split(",")
+    k = header.index("iso_E")
+    first[k] = repr(1.01 * float(first[k]))  # the table recomputed: one modulus 1 % off
+    table.write_text("\n".join([rows[0], ",".join(first), *rows[2:]]) + "\n")
+    with pytest.raises(SceneError, match=rf"reads foam table '{re.escape(str(table))}', which has changed since "
+                                         r"calibration file .* calibrate again"):
+        parse_scene(beam_taking(path, table))
+
+
+@pytest.mark.parametrize("record", [[], [{"table": "cube"}], "cube"])
+def test_a_malformed_table_record_is_named(tmp_path, record):
+    path = tmp_path / "calibration.json"
+    path.write_text(json.dumps({"E_solid": E_TRUE, "foam_tables": record}))
+    with pytest.raises(SceneError, match=r"'foam_tables' must be a non-empty list of"):
+        parse_scene(beam_taking(path))
+
+
+def test_two_tables_two_calibrations_each_scene_takes_its_own(tmp_path, monkeypatch):
+    """demos/experiments.py calibrates the beam once per foam table. With the linear model the tip sag is
+    proportional to 1 / (E_s · q) (q: the table's iso_E at 18 %, γ = 1; the two tables' ν differ by 0.001), so the
+    two calibrated E_s differ by the tables' ratio of q (11 %) while E_s · q agrees; each scene then runs with the
+    calibration of the table its foam reads, and the other table's calibration is refused."""
+    from fenicsfoam.materials import foam_material
+
+    monkeypatch.syspath_prepend(str(SCENES.parent))
+    import experiments
+    base = beam("linear")
+    cals = experiments.calibrate_tables(base, ["cube", "equiaxed"], tmp_path, MPI.COMM_SELF)
+    q = {t: foam_material(0.18, 1.0, 1.0, 0.3, fit="isotropic", table=t).E for t in cals}
+    assert cals["equiaxed"].E_solid / cals["cube"].E_solid == pytest.approx(q["cube"] / q["equiaxed"], rel=2e-3)
+    assert abs(cals["equiaxed"].E_solid / cals["cube"].E_solid - 1) > 0.05
+    for t, cal in cals.items():
+        assert cal.achieved == pytest.approx(experiments.CALIBRATION[3], rel=1e-8)
+        assert [r["table"] for r in cal.foam_tables] == [t]
+    files = {t: d / "calibration.json" for t, d in experiments.calibration_dirs(tmp_path, list(cals)).items()}
+    assert [read_calibration(files[t]) for t in cals] == [cal.E_solid for cal in cals.values()]
+
+    load = experiments.load_scene_dict
+
+    def beams_equiaxed(name, **kwargs):  # the beams on another table than the Tripods, as the experiments will
+        data = load(name, **kwargs)
+        if name.startswith("beam"):
+            data["regions"]["beam"]["table"] = "equiaxed"
+        return data
+
+    monkeypatch.setattr(experiments, "load_scene_dict", beams_equiaxed)
+    names = ("beam_ti_y", "tripod_case_b")
+    assert experiments.scene_tables([experiments.scene(n, True, 1) for n in names]) == ["equiaxed", "cube"]
+    for name, table in zip(names, ("equiaxed", "cube")):
+        data = experiments.scene(name, True, 1, files)
+        assert experiments.scene_E_solid(data) == cals[table].E_solid
+        assert {r.parameters["E_solid"] for r in parse_scene(data).regions if r.material == "foam"} == {
+            cals[table].E_solid}
+    wrong = experiments.scene("beam_ti_y", True, 1, {"equiaxed": files["cube"]})
+    with pytest.raises(SceneError, match=r"region 'beam' reads foam table 'equiaxed', but .* through foam table "
+                                         r"'cube'"):
+        parse_scene(wrong)
+
+
+# --------------------------------------------------------------------------------------------------
 # fenicsfoam calibrate
 # --------------------------------------------------------------------------------------------------
 MPI_ENV = {"OMPI_ALLOW_RUN_AS_ROOT": "1", "OMPI_ALLOW_RUN_AS_ROOT_CONFIRM": "1",
@@ -220,7 +349,8 @@ def test_cli_recovers_a_known_E_solid_and_writes_calibration_json(tmp_path, caps
     assert written["E_solid"] == pytest.approx(E_TRUE, rel=1e-6)
     assert written["achieved"] == pytest.approx(target, rel=1e-6) and written["target"] == target
     assert written["probe"] == "tip_deflection" and written["runs"] == 3 and written["E_solid_initial"] == 12e6
-    assert "E_solid = " in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "E_solid = " in printed and "through foam table 'cube'" in printed
 
 
 @pytest.mark.parametrize("argv, message", [

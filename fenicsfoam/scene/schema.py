@@ -213,9 +213,13 @@ def _read_fem(scene: _Table) -> tuple[str, int, dict[str, Any]]:
     return model, degree, options
 
 
-def _calibrated_E_solid(region: _Table, base: Path | None) -> float:
-    """A foam region's ``E_solid = {calibration = "path"}``: the modulus of a ``calibration.json``."""
-    from fenicsfoam.scene.calibration import CalibrationError, read_calibration
+def _calibrated_E_solid(name: str, region: _Table, base: Path | None, table: str | None) -> float:
+    """A foam region's ``E_solid = {calibration = "path"}``: the modulus of a ``calibration.json``.
+
+    The file must have been calibrated through the region's foam ``table`` (``None``: the default ``"cube"``),
+    :func:`fenicsfoam.scene.calibration.check_calibration_table`.
+    """
+    from fenicsfoam.scene.calibration import CalibrationError, check_calibration_table, read_calibration
 
     spec = region.table("E_solid")
     path = Path(spec.string("calibration", required=True))
@@ -223,9 +227,11 @@ def _calibrated_E_solid(region: _Table, base: Path | None) -> float:
     if not path.is_absolute() and base is not None:
         path = base / path
     try:
-        return read_calibration(path)
+        E_solid = read_calibration(path)
+        check_calibration_table(path, table, name)
     except CalibrationError as exc:
         raise SceneError(f"{spec.key('calibration')}: {exc}") from exc
+    return E_solid
 
 
 def _foam_table_name(region: _Table, base: Path | None) -> str:
@@ -289,14 +295,15 @@ def _read_region(name: str, table: _Table, named: Mapping[str, tuple[int, ...]],
     tags = _tags(table.raw("tags", required=True), table.key("tags"), named, "region")
     material = table.string("material", required=True, choices=tuple(MATERIAL_KEYS))
     calibrated = material == "foam" and isinstance(table.data.get("E_solid"), dict)
-    parameters = {key: (_calibrated_E_solid(table, base) if calibrated and key == "E_solid" else
+    foam_table = _foam_table_name(table, base) if material == "foam" and "table" in table.data else None
+    parameters = {key: (_calibrated_E_solid(name, table, base, foam_table) if calibrated and key == "E_solid" else
                         _read_field(table, key, tags, named) if material == "foam" and key in GRADED_KEYS else
                         table.number(key, required=required, default=default, **MATERIAL_CHECKS.get(key, {})))
                   for key, (required, default) in MATERIAL_KEYS[material].items()}
     if material == "foam":
         parameters["fit"] = table.string("fit", default="transverse", choices=FOAM_FITS)
-        if "table" in table.data:
-            parameters["table"] = _foam_table_name(table, base)
+        if foam_table is not None:
+            parameters["table"] = foam_table
     table.done()
     return Region(name, tags, material, parameters)
 
