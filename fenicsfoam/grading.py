@@ -186,9 +186,9 @@ class FoamTable:
 @lru_cache(maxsize=4)
 def _table(path: str | None) -> FoamTable:
     """The table of a region's ``table`` key: ``None``, a shipped table's name (``"cube"``) or a CSV path."""
-    if path is not None and not path.endswith(".csv"):
-        from homogenization.tables import table_paths
-        path = str(table_paths(path)["table"])
+    if path is not None:
+        from homogenization.tables import resolve_table
+        path = str(resolve_table(path)[1])
     return FoamTable(path)
 
 
