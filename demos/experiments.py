@@ -219,8 +219,6 @@ def predict(name: str, data: dict, out: Path, seeds: bool, comm: MPI.Comm) -> Pr
                         if lost else exc.reason))
         p.instability = lost
         return p
-    moduli = {r.parameters["E_solid"] for r in result.scene.regions if r.material == "foam"}
-    p.E_solid = moduli.pop() if len(moduli) == 1 else math.nan  # as the scene read it; several: per region
     if name.startswith("beam"):
         p.values[("tip deflection (mm)", "-")] = 1e3 * result.probe("tip_deflection")["gravity"]
         p.sigma[("tip deflection (mm)", "-")] = 1e3 * std("tip_deflection")["gravity"] if std else math.nan
