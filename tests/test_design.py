@@ -146,7 +146,10 @@ def test_distributed_equals_serial():
         for p in parameters:
             assert g1[k][p] == pytest.approx(g2[k][p], rel=1e-7)
     assert m1.parameters["orientation.offset_deg"] == pytest.approx(m2.parameters["orientation.offset_deg"], abs=1e-7)
-    assert m1.solves == m2.solves
+    # the optimum and what it achieves agree; the number of solves to get there is round-off dependent
+    # (a trust-region step accepted or not on the last digit), so it is no property of the distribution
+    assert m1.achieved["center_rotation"] == pytest.approx(m2.achieved["center_rotation"], abs=1e-6)
+    assert m1.achieved["center_rotation"] == pytest.approx(-7.0, abs=1e-3)
 
 
 def test_bad_requests_are_refused():
