@@ -121,7 +121,9 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 SCHEMES = ("cg", "basic", "pcg")
-DISCRETIZATIONS = ("rotated", "spectral")
+DISCRETIZATIONS = ("rotated", "spectral", "hex8")
+#: The discretizations solved for nodal displacements (``scheme="pcg"``): trilinear voxels, one or 2×2×2 points.
+NODAL = ("rotated", "hex8")
 DEFAULT_MAXITER = {"cg": 1000, "basic": 5000, "pcg": 1000}
 
 _SQRT2 = np.sqrt(2.0)
@@ -170,8 +172,8 @@ def wave_directions(shape: tuple[int, int, int], discretization: str = "rotated"
         ``(3, N1, N2, N3//2 + 1)`` float64, ``m_1, m_2`` in FFT order, ``m_3 = 0 … N3//2``.
 
     """
-    if discretization not in DISCRETIZATIONS:
-        raise InputError(f"discretization must be one of {DISCRETIZATIONS}, got {discretization!r}")
+    if discretization not in ("rotated", "spectral"):
+        raise InputError(f"wave_directions: discretization must be 'rotated' or 'spectral', got {discretization!r}")
     N = tuple(int(s) for s in shape)
     L = _check_box(box)
     m = [np.fft.fftfreq(N[0], 1.0 / N[0]), np.fft.fftfreq(N[1], 1.0 / N[1]), np.arange(N[2] // 2 + 1.0)]
@@ -887,7 +889,8 @@ def _make_workspace(run: _Run):
         return _Workspace(run.phases, run.stiffness, run.discretization, run.threads, box=run.box,
                           n_vectors={"cg": 2 + run.keep_iterate, "basic": 1}[run.scheme])
     tables = _nodal.stiffness_tables({p: run.stiffness[p] for p in run.counts})
-    ws = _nodal.NodalWorkspace(run.phases, tables, run.shape, run.box, run.threads, run.keep_iterate,
+    kind = _nodal.Hex8Workspace if run.discretization == "hex8" else _nodal.NodalWorkspace
+    ws = kind(run.phases, tables, run.shape, run.box, run.threads, run.keep_iterate,
                                comm=run.comm, i0=run.i0)
     ws.fractions = {p: c / ws.size for p, c in run.counts.items()}
     return ws
@@ -899,14 +902,17 @@ def _check_inputs(phases, materials, *, scheme, discretization, box, tol, maxite
     phases = _check_phases(phases)
     stiff, scale = _check_materials(materials, np.unique(phases))
     if scheme is None:
-        scheme = "pcg" if discretization == "rotated" else "cg"
+        scheme = "pcg" if discretization in NODAL else "cg"
     if scheme not in SCHEMES:
         raise InputError(f"scheme must be one of {SCHEMES}, got {scheme!r}")
     if discretization not in DISCRETIZATIONS:
         raise InputError(f"discretization must be one of {DISCRETIZATIONS}, got {discretization!r}")
-    if scheme == "pcg" and discretization != "rotated":
-        raise InputError(f"scheme='pcg' solves for the nodal displacements of the rotated discretization "
-                         f"(trilinear voxels); it cannot run discretization={discretization!r}: use scheme='cg'")
+    if scheme == "pcg" and discretization not in NODAL:
+        raise InputError(f"scheme='pcg' solves for the nodal displacements of trilinear voxels (discretizations "
+                         f"{NODAL}); it cannot run discretization={discretization!r}: use scheme='cg'")
+    if discretization == "hex8" and scheme != "pcg":
+        raise InputError(f"discretization='hex8' (fully integrated trilinear voxels) is solved by scheme='pcg' only, "
+                         f"got scheme={scheme!r}")
     if not (np.isfinite(tol) and 0.0 < tol < 1.0):
         raise InputError(f"tol must satisfy 0 < tol < 1, got tol = {tol}")
     maxiter = DEFAULT_MAXITER[scheme] if maxiter is None else maxiter
@@ -948,9 +954,9 @@ def _check_inputs_distributed(phases, materials, comm, slab, **settings) -> _Run
     # 1. checks of this rank's own arguments, gathered before any other collective call (a rank that raised here
     #    alone would leave the others waiting in the next one)
     def own():
-        if (scheme or "pcg") != "pcg" or discretization != "rotated":
+        if (scheme or "pcg") != "pcg" or discretization not in NODAL:
             raise InputError(f"distributed mode (comm with {size} ranks) runs scheme='pcg', "
-                             f"discretization='rotated'; got scheme={scheme!r}, discretization={discretization!r}")
+                             f"discretization 'rotated' or 'hex8'; got scheme={scheme!r}, discretization={discretization!r}")
         image = np.asarray(phases)
         if slab and image.ndim == 3 and image.shape[0] == 0:  # an empty slab: too many ranks (below)
             return image
