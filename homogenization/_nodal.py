@@ -579,24 +579,23 @@ def _hex8_green_numpy(ws: Hex8Workspace, a: int, b: int, scale: float, nyquist: 
     C = [ws.C0[a:b, None, None], ws.C1[None, :, None], ws.C2[None, None, :]]
     W = [ws.W0[a:b, None, None], ws.W1[None, :, None], ws.W2[None, None, :]]
     shape = np.broadcast_shapes(*(k.shape for k in K))
-    M = np.zeros(shape + (3, 3))
     A = {}
     for c in range(3):
         d, f = [e for e in range(3) if e != c]
         A[c, c] = np.broadcast_to(K[c] ** 2 * W[d] * W[f], shape)
     for c, d in ((0, 1), (0, 2), (1, 2)):
-        f = 3 - c - d
-        A[c, d] = A[d, c] = np.broadcast_to(K[c] * C[c] * K[d] * C[d] * W[f], shape)
+        A[c, d] = np.broadcast_to(K[c] * C[c] * K[d] * C[d] * W[3 - c - d], shape)
     tr = A[0, 0] + A[1, 1] + A[2, 2]
     zero = tr <= ws.kmin
-    for c in range(3):
-        for d in range(3):
-            M[..., c, d] = 0.5 * A[c, d] + (0.5 * tr if c == d else 0.0)
-    M[zero] = np.eye(3)
-    Minv = np.linalg.inv(M) * scale
-    Minv[zero] = 0.0
+    M = {key: 0.5 * value + (0.5 * tr if key[0] == key[1] else 0.0) for key, value in A.items()}
+    M[0, 0], M[1, 1], M[2, 2] = (np.where(zero, 1.0, M[c, c]) for c in range(3))
+    adj = {(0, 0): M[1, 1] * M[2, 2] - M[1, 2] ** 2, (0, 1): M[0, 2] * M[1, 2] - M[0, 1] * M[2, 2],
+           (0, 2): M[0, 1] * M[1, 2] - M[0, 2] * M[1, 1], (1, 1): M[0, 0] * M[2, 2] - M[0, 2] ** 2,
+           (1, 2): M[0, 1] * M[0, 2] - M[0, 0] * M[1, 2], (2, 2): M[0, 0] * M[1, 1] - M[0, 1] ** 2}
+    s = np.where(zero, 0.0, scale / (M[0, 0] * adj[0, 0] + M[0, 1] * adj[0, 1] + M[0, 2] * adj[0, 2]))
+    inv = lambda c, d: s * adj[min(c, d), max(c, d)]  # noqa: E731
     r = ws.hat[:, a:b]
-    z = np.einsum("...cd,d...->c...", Minv, r)
+    z = np.stack([inv(c, 0) * r[0] + inv(c, 1) * r[1] + inv(c, 2) * r[2] for c in range(3)])
     index = k_lo + np.arange(shape[-1])
     w = np.where((index == 0) | (nyquist & (index == H - 1)), 1.0, 2.0)
     total = float(np.sum(w * np.real(np.conj(r) * z).sum(axis=0)))
