@@ -218,6 +218,7 @@ def test_distributed_result_equals_serial(shape):
 # --------------------------------------------------------------------------------------------------
 # The table pipeline and the command line
 # --------------------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_sweep_with_hex8_has_its_own_table_cache_entries_and_rows(tmp_path):
     """A hex8 sweep computes its own samples (never a rotated entry), records its discretization, resumes from its
     cache, and its stiffness lies above the rotated one of the same foam (full integration is stiffer)."""
