@@ -32,15 +32,23 @@ The wave vector ``k`` depends on the discretization:
     Willot (2015): ``k_j ∝ (2/h_j) sin(ξ_j h_j/2) ∏_{l≠j} cos(ξ_l h_l/2)``, equivalent to trilinear hexahedra
     with one-point integration; no Gibbs ringing, well posed with void. Where this ``k`` vanishes away from
     ``ξ = 0`` (two components at Nyquist on an even grid: the hourglass modes) ``G = 0``.
+``"hex8"``
+    Trilinear hexahedra (the voxels) with full 2×2×2 Gauss integration, the conforming finite-element model of the
+    voxel image (Ladecký et al. 2023; FANS's HEX8 element): no hourglass modes, stiffer than ``"rotated"``, so the
+    two bracket the voxel geometry's moduli. Solved for the nodal displacements only (``scheme="pcg"``, its
+    Green preconditioner the inverse of the same discretization's stiffness for the identity material, a 3×3
+    matrix per wave vector; :class:`homogenization._nodal.Hex8Workspace`).
 
 Schemes and stopping criterion
 ------------------------------
-``"pcg"`` (default with ``"rotated"``; Ladecký et al. 2023)
+``"pcg"`` (default with ``"rotated"`` and ``"hex8"``; Ladecký et al. 2023)
     The rotated scheme solved for the nodal displacements ``u`` of the trilinear voxels: ``Bᵀ C B u = −Bᵀ C E``
     by conjugate gradients preconditioned with the Green operator ``(Bᵀ B)⁻¹`` (diagonal in Fourier space), see
     :mod:`homogenization._nodal`. Its iterates are those of ``"cg"`` mapped by ``B``: same residuals, iteration
     counts and C, with one FFT pair of 3 (not 6) components per iteration and about half the work arrays.
-    It also runs distributed over MPI ranks (``comm=``).
+    It also runs distributed over MPI ranks (``comm=``). With ``"hex8"`` the same CG solves the fully integrated
+    stiffness ``K = Σ_g B_gᵀ C B_g / 8`` preconditioned by ``K_I⁻¹`` of that discretization; it stops on the
+    relative preconditioned residual ``sqrt(rᵀ K_I⁻¹ r / r₀ᵀ K_I⁻¹ r₀)``, the counterpart of ``‖G[σ]‖/‖G[C:E]‖``.
 ``"cg"`` (default with ``"spectral"``; Zeman et al. 2010, Vondřejc et al. 2014)
     Solve ``G[C : ε̃] = −G[C : E]`` for ``ε̃`` in the range of ``G`` with conjugate gradients; the operator is
     symmetric positive semi-definite there (Mandel inner product), also with a zero-stiffness phase.
@@ -743,7 +751,8 @@ def homogenize_fft(
         the strain. ``"basic"``: Moulinec–Suquet fixed point with :func:`reference_medium` (refuses a
         zero-stiffness phase).
     discretization
-        ``"rotated"`` (Willot, default) or ``"spectral"`` (Moulinec–Suquet), see :func:`wave_directions`.
+        ``"rotated"`` (Willot, default) or ``"spectral"`` (Moulinec–Suquet), see :func:`wave_directions`;
+        ``"hex8"``: fully integrated trilinear voxels, ``scheme="pcg"`` only (the module docstring).
     box
         Lengths ``(L1, L2, L3)`` of the periodic box (any unit: only their ratios matter); default the unit cube,
         ``h_a = 1/N_a``. For an RVE box of lengths ``L`` with cubic voxels pass ``box=L`` with
@@ -779,7 +788,7 @@ def homogenize_fft(
     comm
         mpi4py communicator: with more than one rank the image is distributed over the ranks in slabs of planes
         along axis 0 (:func:`slab_planes`), the FFTs by mpi4py-fft; scheme
-        ``"pcg"``, discretization ``"rotated"``. Every rank returns the same result (``info`` adds ``ranks``,
+        ``"pcg"``, discretization ``"rotated"`` or ``"hex8"``. Every rank returns the same result (``info`` adds ``ranks``,
         ``planes``, ``work_bytes_per_rank``, ``peak_rss_bytes_per_rank``). At most ``min(N1, N3//2 + 1)`` ranks
         (the spectrum is split along its last axis); any rank count up to that works (uneven slabs). Call it on
         every rank of ``comm``.
