@@ -3,7 +3,7 @@
 Both are solved by the nodal Green-preconditioned CG (``scheme="pcg"`` of :func:`homogenization.fft.homogenize_fft`)
 with a zero-stiffness void and a solid of E = 1, ν = 0.3, on the foams ``VoronoiFoam(--cells, --density, γ,
 seed=--seed, box="equiaxed", distance=...)`` — struts (``euclidean``) and walls (``polyhedral``), γ = 1 and 0.1 —
-each at two grids: ``--cubic N N'`` for γ = 1 (N³ voxels) and ``--flat A B`` for γ = 0.1 (grids ``(A/5) × A × A``,
+each at two grids: ``--cubic N N'`` (struts; walls ``--cubic-walls``, default 64 96) for γ = 1 (N³ voxels) and ``--flat A B`` for γ = 0.1 (grids ``(A/5) × A × A``,
 voxels twice as long along y and z as along x, as the shipped wall-foam table). Every run is one fresh process
 (its peak RSS is its own), one thread, tolerance ``--tol``.
 
@@ -14,10 +14,11 @@ iteration, the solver's work arrays and the process's peak RSS, the diagonal of 
 
 ``ref``: per foam, each discretization extrapolated to h → 0 from its two grids with the first order of a voxel
 staircase (``q0 = q_f + (q_f − q_c)/(r − 1)``, r the grid ratio), and the reference the mean of the two
-extrapolations. ``dC_diag`` is the largest relative difference of the six diagonal moduli C11 … C66 from the
-reference (the soft moduli of γ = 0.1 count as much as the stiff ones); ``dC_fro`` the Frobenius difference relative
-to the reference's norm. ``ref_spread`` is the relative difference of the two extrapolations (how much the
-reference itself is to be trusted).
+extrapolations (of C; the engineering moduli are then those of the extrapolated C). ``dE_max`` is the largest
+relative difference of the six engineering moduli E1, E2, E3, G23, G13, G12 (from the compliance) from the
+reference's (the soft moduli of γ = 0.1 count as much as the stiff ones); ``dC_fro`` the Frobenius difference of
+C relative to the reference's norm. ``ref_spread`` is the largest relative difference of the two extrapolations'
+moduli (how much the reference itself is to be trusted).
 
 With ``--hinges``: instead, the hinges and islands (:func:`homogenization.connectivity.connectivity`) of the foams
 of the shipped tables at their own resolutions (``cube``: 8 cells, N = 48, densities 0.09, 0.18, 0.34; ``equiaxed``:
@@ -45,31 +46,53 @@ import numpy as np  # noqa: E402
 from foambase.files import atomic_open  # noqa: E402
 
 COLUMNS = ["foam", "gamma", "grid", "voxels", "method", "iterations", "total_iterations", "cpu_s", "cpu_ms_per_it",
-           "work_MB", "peak_rss_MB", "C11", "C22", "C33", "C44", "C55", "C66", "dC_diag", "dC_fro", "ref_spread",
-           "hinges", "hinged_islands", "floating_islands"]
+           "work_MB", "peak_rss_MB", "E1", "E2", "E3", "G23", "G13", "G12", "dE_max", "dC_fro", "ref_spread",
+           "hinges", "hinged_islands", "floating_islands", "C"]
 DISTANCE = {"struts": "euclidean", "walls": "polyhedral"}
+MODULI = ("E1", "E2", "E3", "G23", "G13", "G12")
+
+
+def moduli(C) -> np.ndarray:
+    from homogenization.tensors import engineering_constants
+
+    from homogenization.tensors import InadmissibleMaterialError
+
+    try:
+        e = engineering_constants(np.asarray(C))
+    except InadmissibleMaterialError:  # a voxel solid that does not percolate (walls one voxel across)
+        return np.full(len(MODULI), np.nan)
+    return np.array([e[m] for m in MODULI])
 
 
 def _grid(gamma: float, size: int):
     return (size,) * 3 if gamma == 1.0 else (size // 5, size, size)
 
 
-def run_one(foam: str, gamma: float, size: int, method: str, a: dict) -> dict:
+def foam_image(foam: str, gamma: float, size: int, a: dict, cache: Path) -> tuple[Path, tuple]:
+    """The voxelized foam (saved once in ``cache`` for the methods that run it) and its box."""
+    from meshes.foam import VoronoiFoam
+
+    vf = VoronoiFoam(a["cells"], a["density"], gamma, seed=a["seed"], box="equiaxed", distance=DISTANCE[foam])
+    path = cache / f"{foam}_g{gamma:g}_{size}_c{a['cells']}_d{a['density']:g}_s{a['seed']}.npy"
+    if not path.exists():
+        image = vf.voxelize(_grid(gamma, size) if gamma != 1.0 else size, cubic=gamma == 1.0).astype(np.int8)
+        np.save(path, image)
+    return path, tuple(float(b) for b in vf.box)
+
+
+def run_one(foam: str, gamma: float, size: int, method: str, a: dict, path: Path, box: tuple) -> dict:
     """One homogenization in this (fresh) process."""
     import resource
 
     from homogenization.connectivity import connectivity
     from homogenization.fft import homogenize_fft
     from homogenization.tensors import isotropic_voigt
-    from meshes.foam import VoronoiFoam
 
-    vf = VoronoiFoam(a["cells"], a["density"], gamma, seed=a["seed"], box="equiaxed", distance=DISTANCE[foam])
-    grid = _grid(gamma, size)
-    image = vf.voxelize(grid if gamma != 1.0 else size, cubic=gamma == 1.0).astype(np.int8)
+    image = np.load(path)
     topology = connectivity(image)
     t0 = time.process_time()
     r = homogenize_fft(image, [np.zeros((6, 6)), isotropic_voigt(1.0, 0.3)], discretization=method, tol=a["tol"],
-                       box=tuple(vf.box), maxiter=a["maxiter"], threads=1, raise_on_failure=False)
+                       box=box, maxiter=a["maxiter"], threads=1, raise_on_failure=False)
     cpu = time.process_time() - t0
     total = int(sum(r.iterations))
     return {"foam": foam, "gamma": gamma, "grid": "x".join(map(str, image.shape)), "voxels": int(image.size),
@@ -95,13 +118,13 @@ def references(rows: list[dict]) -> None:
         if not extrapolated:
             continue
         ref = np.mean(extrapolated, axis=0)
-        d_ref = np.diag(ref)
+        d_ref = moduli(ref)
         spread = float("nan")
         if len(extrapolated) > 1:
-            spread = float(np.max(np.abs(np.diag(extrapolated[0]) - np.diag(extrapolated[1])) / np.abs(d_ref)))
+            spread = float(np.max(np.abs(moduli(extrapolated[0]) - moduli(extrapolated[1])) / np.abs(d_ref)))
         for r in group:
             C = np.array(r["C"])
-            r["dC_diag"] = float(np.max(np.abs(np.diag(C) - d_ref) / np.abs(d_ref)))
+            r["dE_max"] = float(np.max(np.abs(moduli(C) - d_ref) / np.abs(d_ref)))
             r["dC_fro"] = float(np.linalg.norm(C - ref) / np.linalg.norm(ref))
             r["ref_spread"] = spread
 
@@ -142,7 +165,8 @@ def main(argv=None) -> int:
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--foams", nargs="+", choices=tuple(DISTANCE), default=list(DISTANCE))
     p.add_argument("--gammas", type=float, nargs="+", default=[1.0, 0.1])
-    p.add_argument("--cubic", type=int, nargs="+", default=[32, 48], help="N of the γ = 1 grids N³")
+    p.add_argument("--cubic", type=int, nargs="+", default=[32, 48], help="N of the struts' γ = 1 grids N³")
+    p.add_argument("--cubic-walls", type=int, nargs="+", default=[64, 96], help="N of the walls' γ = 1 grids N³")
     p.add_argument("--flat", type=int, nargs="+", default=[100, 150], help="A of the γ = 0.1 grids (A/5) × A × A")
     p.add_argument("--methods", nargs="+", choices=("rotated", "hex8"), default=["rotated", "hex8"])
     p.add_argument("--cells", type=int, default=8)
@@ -164,26 +188,32 @@ def main(argv=None) -> int:
         return 0
     settings = {"cells": a.cells, "density": a.density, "seed": a.seed, "tol": a.tol, "maxiter": a.maxiter}
     jobs = [(foam, gamma, size, method) for foam in a.foams for gamma in a.gammas
-            for size in (a.cubic if gamma == 1.0 else a.flat) for method in a.methods]
+            for size in ((a.cubic if foam == "struts" else a.cubic_walls) if gamma == 1.0 else a.flat)
+            for method in a.methods]
     rows = []
     ctx = multiprocessing.get_context("spawn")
+    images = a.out / "images"
+    images.mkdir(parents=True, exist_ok=True)
     for job in jobs:  # one fresh process per run: its peak RSS is its own
+        path, box = foam_image(*job[:3], settings, images)
         with ProcessPoolExecutor(max_workers=1, mp_context=ctx) as pool:
-            row = pool.submit(run_one, *job, settings).result()
+            row = pool.submit(run_one, *job, settings, path, box).result()
         rows.append(row)
         print(f"{row['foam']:6s} γ={row['gamma']:<4g} {row['grid']:>12s} {row['method']:7s} "
               f"it {row['iterations']:>32s} = {row['total_iterations']:6d}  CPU {row['cpu_s']:8.1f} s "
               f"({row['cpu_ms_per_it']:6.2f} ms/it)  RSS {row['peak_rss_MB']:6.0f} MB  "
-              f"diag {np.round(np.diag(row['C']), 5).tolist()}{'' if row['converged'] else '  NOT CONVERGED'}",
+              f"E1..G12 {[float(f'{m:.4g}') for m in moduli(row['C'])]}"
+              f"{'' if row['converged'] else '  NOT CONVERGED'}",
               flush=True)
     references(rows)
     print(f"\n{'foam':6s} {'γ':>4s} {'grid':>12s} {'method':7s} {'Σ it':>6s} {'CPU s':>8s} {'ms/it':>6s} "
-          f"{'RSS MB':>6s} {'dC_diag':>8s} {'dC_fro':>8s} {'spread':>7s} {'hinges':>6s}")
+          f"{'RSS MB':>6s} {'dE_max':>8s} {'dC_fro':>8s} {'spread':>7s} {'hinges':>6s}")
     for r in rows:
-        C = np.array(r.pop("C"))
-        r.update({f"C{i + 1}{i + 1}": float(C[i, i]) for i in range(6)})
+        C = np.array(r["C"])
+        r.update(dict(zip(MODULI, map(float, moduli(C)))))
+        r["C"] = " ".join(repr(float(c)) for c in C.ravel())
         print(f"{r['foam']:6s} {r['gamma']:4g} {r['grid']:>12s} {r['method']:7s} {r['total_iterations']:6d} "
-              f"{r['cpu_s']:8.1f} {r['cpu_ms_per_it']:6.2f} {r['peak_rss_MB']:6.0f} {r.get('dC_diag', np.nan):8.3f} "
+              f"{r['cpu_s']:8.1f} {r['cpu_ms_per_it']:6.2f} {r['peak_rss_MB']:6.0f} {r.get('dE_max', np.nan):8.3f} "
               f"{r.get('dC_fro', np.nan):8.3f} {r.get('ref_spread', np.nan):7.3f} {r['hinges']:6d}")
     a.out.mkdir(parents=True, exist_ok=True)
     path = a.out / "bench_void_methods.csv"
