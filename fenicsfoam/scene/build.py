@@ -40,7 +40,7 @@ from foambase.errors import InputError
 from foambase.imports import import_callable
 from foambase.mpi import on_every_rank
 
-__all__ = ["Model", "build_model", "load_steps", "resolve_material"]
+__all__ = ["Model", "build_model", "check_materials", "load_steps", "resolve_material"]
 
 
 @dataclass
@@ -225,10 +225,23 @@ def load_steps(scene: Scene) -> list[LoadStep]:
     return steps
 
 
+def check_materials(scene: Scene) -> dict[str, Any]:
+    """The material of every region, resolved and checked before anything is built (:class:`SceneError`).
+
+    Every region's values (:func:`resolve_material`), the orientation the materials need, and the table graded
+    fields read. The first step of :func:`build_model`, and the check of every variation of a scene
+    (:func:`fenicsfoam.scene.vary.vary_scene`).
+    """
+    resolved = {region.name: resolve_material(region) for region in scene.regions}
+    _check_orientation(scene, resolved)
+    if scene.graded:
+        _check_default_tables(scene, "graded foam fields")
+    return resolved
+
+
 def build_model(scene: Scene, comm) -> Model:
     """Build the mesh, the problem and the probes of a validated scene (collective)."""
-    resolved = {region.name: resolve_material(region) for region in scene.regions}  # before meshing: fail fast
-    _check_orientation(scene, resolved)
+    resolved = check_materials(scene)  # before meshing: fail fast
     tagged = _build_mesh(scene, comm)
     mesh, cell_tags = tagged.mesh, tagged.cell_tags
     extent = mesh_extent(mesh)
@@ -237,7 +250,6 @@ def build_model(scene: Scene, comm) -> Model:
     materials = {tag: resolved[region.name] for region in scene.regions for tag in region.tags}
     records = {region.name: _material_record(resolved[region.name]) for region in scene.regions}
     if scene.graded:  # per-cell density and γ through the table (fenicsfoam.grading)
-        _check_default_tables(scene, "graded foam fields")
         from fenicsfoam.grading import CellMaterials
         try:
             cells = CellMaterials.from_regions(mesh, cell_tags, scene.regions, materials=resolved, blends=scene.blends)
