@@ -26,6 +26,13 @@ void ff_hex_apply(int64_t n2, int64_t n3, int64_t a, int64_t b, const double *p,
 double ff_hex_green(int64_t ni, int64_t n2, int64_t h3, double *hat, int64_t stride, const double *K0,
                     const double *C0, const double *K1, const double *C1, const double *K2, const double *C2,
                     double kmin, double scale, int nyquist, int64_t k_lo, int64_t h_global);
+void ff_hex8_apply(int64_t n2, int64_t n3, int64_t a, int64_t b, const double *p, int64_t pstride,
+                   const int32_t *phase, const double *Ke, const int32_t *active, const double *tables,
+                   const double *h, double *q, int64_t qstride, double *sums);
+double ff_hex8_green(int64_t ni, int64_t n2, int64_t h3, double *hat, int64_t stride, const double *K0,
+                     const double *C0, const double *W0, const double *K1, const double *C1, const double *W1,
+                     const double *K2, const double *C2, const double *W2, double kmin, double scale, int nyquist,
+                     int64_t k_lo, int64_t h_global);
 double ff_axpby(int64_t n, int ncomp, const double *alpha, const double *x, int64_t xstride, double beta,
                 double *y, int64_t ystride, int norm);
 """
