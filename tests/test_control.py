@@ -103,7 +103,7 @@ def test_bad_input_is_refused_before_any_work(targets, kwargs, message, monkeypa
 
 def test_a_scene_without_servos_is_refused():
     data = tomllib.loads((ROOT / "demos" / "scenes" / "beam_ti_z.toml").read_text())
-    with pytest.raises(InputError, match="needs the tripod builder with loads.servos"):
+    with pytest.raises(InputError, match="needs the tripod builder with three servos"):
         control_servos(parse_scene(data), {"center_height": 0.02})
 
 
