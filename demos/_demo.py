@@ -26,9 +26,9 @@ from foambase.logs import setup_logging
 SCENES = Path(__file__).resolve().parent / "scenes"
 #: The paper's Table I, (simulated, real) at rest, middle, top: centre rotation (deg), centre height (mm).
 TABLE_I = {
-    "tripod_case_a": {"angle": ((-3.36, 4.47, 14.85), (0.0, 3.96, 20.49)),
+    "tripod_case_a_flat": {"angle": ((-3.36, 4.47, 14.85), (0.0, 3.96, 20.49)),
                       "height": ((67.57, 81.95, 89.88), (71.7, 84.5, 92.9))},
-    "tripod_case_b": {"angle": ((-9.31, 8.15, 27.21), (0.0, 5.53, 22.1)),
+    "tripod_case_b_flat": {"angle": ((-9.31, 8.15, 27.21), (0.0, 5.53, 22.1)),
                       "height": ((68.67, 80.73, 87.0), (73.5, 85.8, 94.0))},
 }
 #: Fig. 6 of the paper: scene → (real, simulated) tip deflection in mm (the caption's blue, green, red beams).

@@ -1,7 +1,7 @@
 """Why does the Tripod case A twist so little? One factor at a time, from the shipped scenes' foam.
 
-Each row is one run of the Tripod (D3-invariant mesh, the foam constants of `demos/scenes/tripod_case_a.toml` /
-`tripod_case_b.toml` resolved from today's foam table) with one factor changed; it reports the centre's height
+Each row is one run of the Tripod (D3-invariant mesh, the foam constants of `demos/scenes/tripod_case_a_flat.toml` /
+`tripod_case_b_flat.toml` resolved from today's foam table) with one factor changed; it reports the centre's height
 and twist at rest and their changes from rest to middle (19°) and top (38°), or the load step that failed and why.
 Factors (groups of the printed table and of `tripod_twist.csv`):
 
@@ -141,7 +141,7 @@ def _mesh(comm, h: float):
 def scene_materials() -> dict[str, object]:
     """The foam constants of the shipped case A (arms, centre) and case B (plate) scenes."""
     out = {}
-    for scene_name, keys in (("tripod_case_a", ("arms", "centre")), ("tripod_case_b", ("plate",))):
+    for scene_name, keys in (("tripod_case_a_flat", ("arms", "centre")), ("tripod_case_b_flat", ("plate",))):
         scene = load_scene(SCENES / f"{scene_name}.toml")
         for region in scene.regions:
             if region.name in keys:

@@ -24,7 +24,7 @@ UNSEEN = [30.0, 22.0, 35.0]  # the forward run's angles; the controller starts f
 
 
 def case_b(**last_step) -> dict:
-    data = tomllib.loads((ROOT / "demos" / "scenes" / "tripod_case_b.toml").read_text())
+    data = tomllib.loads((ROOT / "demos" / "scenes" / "tripod_case_b_flat.toml").read_text())
     data["geometry"]["h"] = 0.008
     data["outputs"] = {"png": False, "xdmf": False}
     data["probes"] = PROBES
