@@ -594,7 +594,8 @@ def control_servos(source, targets: Mapping[str, float], *, comm=None, servo_ran
 # The command
 # --------------------------------------------------------------------------------------------------
 def _arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("scene", type=cli.nonempty_path, help="a Tripod scene file (TOML) with three servos (loads.servos = true or [loads.servo.NAME])")
+    parser.add_argument("scene", type=cli.nonempty_path,
+                        help="a Tripod scene file (TOML) with three servos (loads.servos = true or [loads.servo.NAME])")
     parser.add_argument("--target", action="append", default=[], metavar="NAME=VALUE", required=True,
                         help="a target pose component: center_height (m), center_rotation, center_tilt_x, "
                              "center_tilt_y (deg); repeat for up to three")

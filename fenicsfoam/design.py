@@ -261,8 +261,10 @@ class SceneDesign:
         return self.scene.servos[name]["setup_deg"]
 
     def servo_deg(self) -> tuple[float, ...]:
-        """The last step's servo angles from rest (deg), in the order of :attr:`servos`; those in force before it
-        where it gives none."""
+        """The last step's servo angles from rest (deg), in the order of :attr:`servos`.
+
+        Where the last step gives none, those in force before it.
+        """
         if not self.servos:
             raise InputError(f"scene {self.scene.name!r} has no servos (loads.servos = true or [loads.servo.NAME])")
         angles = [0.0] * len(self.servos)

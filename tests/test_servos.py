@@ -48,7 +48,7 @@ def test_the_as_built_servos_are_the_tutorials_converted():
     27.5 mm), axle its local x turned by 120°i about y: mapped by (x, y, z) = (−z, −x, y − 27.5 mm) it lies along arm
     i, and the horn turned by the set-up angle points outwards, 85.74° from the vertical (nearly horizontal)."""
     servos = parse_scene(scene("tripod_case_b")).servos
-    for i, (name, spec) in enumerate(servos.items()):
+    for i, spec in enumerate(servos.values()):
         a = math.radians(120 * i)
         sofa = np.array([60 * math.sin(a + math.pi), -1.35, 60 * math.cos(a + math.pi)])
         axle_sofa = np.array([math.cos(a), 0.0, -math.sin(a)])
@@ -89,7 +89,7 @@ def test_a_clamp_box_selects_the_nodes_inside_it():
     """``clamp_box`` (the tutorial's [45, 15, 30] mm box on the horn's tip): the prescribed nodes are exactly those
     whose coordinates in the servo's frame lie within the half sizes."""
     from fenicsfoam.bcs import MotionBC
-    from fenicsfoam.scene.kinds import BuildContext, LOAD_KINDS
+    from fenicsfoam.scene.kinds import LOAD_KINDS, BuildContext
     data = scene("tripod_case_b", steps=1)
     for i in range(3):
         del data["loads"]["servo"][f"servo{i}"]["clamp"]
@@ -102,12 +102,13 @@ def test_a_clamp_box_selects_the_nodes_inside_it():
     V = fem.VectorFunctionSpace(tagged.mesh, ("Lagrange", 1))
     X = V.tabulate_dof_coordinates()
     for motion, (name, spec) in zip(motions, parsed.servos.items()):
-        a = np.array(spec["axle"]); h = np.array(spec["horn"])
+        a, h = np.array(spec["axle"]), np.array(spec["horn"])
         local = (X - (np.array(spec["axle_point"]) + 0.025 * h)) @ np.array([a, h, np.cross(a, h)]).T
         inside = np.flatnonzero(np.all(np.abs(local) <= np.array([0.0225, 0.0075, 0.015]) + 1e-12, axis=1))
         assert len(inside) > 10
         np.testing.assert_array_equal(np.sort(MotionBC(V, motion).dofs), inside, err_msg=name)
-        radial = X[inside] @ [math.cos(math.radians(120 * int(name[-1]))), math.sin(math.radians(120 * int(name[-1]))), 0]
+        phi = math.radians(120 * int(name[-1]))
+        radial = X[inside] @ [math.cos(phi), math.sin(phi), 0.0]
         assert radial.min() >= 0.045 - 1e-12  # the arm's last 10 mm (45-55 mm out along the arm)
 
 

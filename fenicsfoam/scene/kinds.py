@@ -4,10 +4,10 @@
 checks, the named regions and facet groups it makes, and its mesher); ``probes = [...]`` names entries of
 :data:`PROBE_KINDS` (``"tip_deflection"``) or of :data:`GROUP_PROBE_KINDS` written ``"KIND:GROUP"``
 (``"reaction_force:base"``); the keys of ``[loads]`` are the entries of :data:`LOAD_KINDS` (``servo``: the servo
-actuators, :mod:`fenicsfoam.scene.servos`). Each entry carries its validation, run by
-:mod:`fenicsfoam.scene.schema` before anything is built, and its builder, run by :mod:`fenicsfoam.scene.build`;
-the reader and the builder loop over the registries, so a new kind is one entry here. Builders import the dolfinx-based modules when they are called, so reading and
-validating a scene stays light.
+actuators, :func:`servo_box`). Each entry carries its validation, run by :mod:`fenicsfoam.scene.schema` before
+anything is built, and its builder, run by :mod:`fenicsfoam.scene.build`; the reader and the builder loop over the
+registries, so a new kind is one entry here. Builders import the dolfinx-based modules when they are called, so
+reading and validating a scene stays light.
 """
 
 from __future__ import annotations
@@ -20,8 +20,9 @@ import numpy as np
 
 from fenicsfoam.scene.table import SceneError, _Table, _tags, _vector
 
-__all__ = ["GEOMETRY_KINDS", "GROUP_PROBE_KINDS", "LOAD_KINDS", "GeometryKind", "GeometryKey", "PROBES", "PROBE_KINDS", "PROBE_UNITS", "RESERVED_MOTIONS",
-           "BuildContext", "GroupProbeKind", "LoadKind", "MeshInfo", "ProbeKind", "probe_size", "probe_unit"]
+__all__ = ["GEOMETRY_KINDS", "GROUP_PROBE_KINDS", "LOAD_KINDS", "PROBES", "PROBE_KINDS", "PROBE_UNITS",
+           "RESERVED_MOTIONS", "BuildContext", "GeometryKey", "GeometryKind", "GroupProbeKind", "LoadKind", "MeshInfo",
+           "ProbeKind", "probe_size", "probe_unit", "servo_box", "tripod_flat_servos"]
 
 
 @dataclass(frozen=True)
@@ -364,7 +365,7 @@ def servo_box(spec: Mapping[str, Any]) -> Callable[[np.ndarray], np.ndarray]:
 
 
 def _servo_motions(servos: Mapping[str, dict], context: BuildContext) -> list:
-    """Each servo carries its clamp rigidly about its axle: ``x = R(θ, axle)(X − p) + p + t`` (:mod:`fenicsfoam.bcs`)."""
+    """Each servo carries its clamp rigidly: ``x = R(θ, axle)(X − p) + p + t`` (:mod:`fenicsfoam.bcs`)."""
     from fenicsfoam.bcs import RigidMotion
     dim = context.tagged.mesh.topology.dim
     motions = []
@@ -479,9 +480,10 @@ def _cables(named: dict[str, dict], context: BuildContext) -> list:
 #: facet tags or a facet group name`` (held fixed), ``[loads.servo.NAME]`` (a servo actuator: a rigid servo body
 #: whose horn carries a clamped part of the mesh, set up by a translation and a horn angle that define the rest and
 #: turned from there by the steps' ``servos = {NAME = deg}``), ``servos = true`` (shorthand: the Tripod's three
-#: servos with the flat-plate kinematics, :func:`tripod_flat_servos`, turned by the steps' ``servo_deg``); named loads ``[loads.force.NAME]`` (a total force, N), ``[loads.traction.NAME]`` (a dead
-#: traction, Pa), ``[loads.pressure.NAME]`` (a follower pressure, Pa), ``[loads.cable.NAME]`` (a tendon, N), each
-#: scaled by the steps' ``loads = {NAME = factor}``; and ``[loads.motion.NAME]`` (a rigid motion of a group, moved
+#: servos with the flat-plate kinematics, :func:`tripod_flat_servos`, turned by the steps' ``servo_deg``); named
+#: loads ``[loads.force.NAME]`` (a total force, N), ``[loads.traction.NAME]`` (a dead traction, Pa),
+#: ``[loads.pressure.NAME]`` (a follower pressure, Pa), ``[loads.cable.NAME]`` (a tendon, N), each scaled by the
+#: steps' ``loads = {NAME = factor}``; and ``[loads.motion.NAME]`` (a rigid motion of a group, moved
 #: by the steps' ``motions``). Definitions: :mod:`fenicsfoam.loads`, :mod:`fenicsfoam.bcs`.
 LOAD_KINDS: dict[str, LoadKind] = {
     "gravity": LoadKind(_read_gravity),
@@ -508,6 +510,7 @@ class GeometryKey:
     kind: str = "length"   #: "length" (> 0, m), "length0" (≥ 0, m), "number" (finite), "bool", "order" (1 | 2)
 
     def read(self, table: _Table, key: str) -> Any:
+        """The key's validated value (its default when absent)."""
         if self.kind == "bool":
             return table.boolean(key, self.default)
         if self.kind == "order":
@@ -540,8 +543,10 @@ class GeometryKind:
     read: Callable[[_Table, Any], MeshInfo] | None = None
 
     def info(self, name: str, table: _Table, base: Any = None) -> MeshInfo:
-        """The validated keys of ``table`` (its leftovers refused) and what the mesh will hold; ``base``: the
-        directory relative paths refer to."""
+        """The validated keys of ``table`` (its leftovers refused) and what the mesh will hold.
+
+        ``base``: the directory relative paths refer to.
+        """
         if self.read is not None:
             return self.read(table, base)
         params = {key: spec.read(table, key) for key, spec in self.keys().items()}

@@ -426,8 +426,10 @@ def _read_label(table: _Table) -> str:
 
 
 def _read_step_servos(table: _Table, loads: Mapping[str, Any]) -> dict[str, float]:
-    """``servos = {NAME = deg}`` (or one number for every servo), or the shorthand ``servo_deg``: horn angles from
-    rest, in degrees; each servo's ``range_deg`` bounds its angle ``setup_deg + θ``."""
+    """A step's horn angles from rest (deg): ``servos = {NAME = deg}`` (or one number), or ``servo_deg``.
+
+    ``servo_deg`` is the shorthand of ``loads.servos = true``; each servo's ``range_deg`` bounds ``setup_deg + θ``.
+    """
     servos = loads["servo"]
     angles: dict[str, float] = {}
     for key in ("servos", "servo_deg"):
