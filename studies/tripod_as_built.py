@@ -3,9 +3,10 @@
 Runs the shipped as-built scenes (`demos/scenes/tripod_silicone.toml`, `tripod_case_a.toml`, `tripod_case_b.toml`:
 the SoftRobots Tripod's servo layout, set-up 35 mm inwards with the horns at −85.743°, then +19° and +38° from
 rest) on P1 meshes of element size ``h``, with each constitutive model of `fenicsfoam.constitutive.MODELS` that
-the study lists, clamped as the tutorial does (``box``: the nodes of the arm's last 10 mm) and, for comparison, by the
-mesh region r ≥ 45 mm (``region``: a circular clamp edge with sharp corners at the arm's sides). A failed load step is a row (the step and the fraction of it reached, with the strong-ellipticity
-check at the last converged state), not an exception.
+the study lists, clamped as the tutorial does (``box``: the nodes of the arm's last 10 mm) and, for comparison, by
+the mesh region r ≥ 45 mm (``region``: a circular clamp edge with sharp corners at the arm's sides). A failed load
+step is a row (the step and the fraction of it reached, with the strong-ellipticity check at the last converged
+state), not an exception.
 
 Case A's layout: the paper gives the arms' directions as "0, 120 and 240°". Four readings, each the angle of every
 arm's l axis from its arm, counter-clockwise seen from above (the scene's frame: z up):
