@@ -396,7 +396,8 @@ def tripod_study(comm: MPI.Comm, size: dict) -> list[dict]:
     from fenicsfoam.materials import foam_material
     from fenicsfoam.probes import CenterHeight, CenterRotation
     from fenicsfoam.scene import load_scene, spiral_directions
-    from fenicsfoam.solver import ConvergenceError, ElasticityProblem, LoadStep
+    from fenicsfoam.scene.build import load_steps
+    from fenicsfoam.solver import ConvergenceError, ElasticityProblem
     from fenicsfoam.validity import small_strain_validity
     from meshes.tripod import ARM_END, RING, TripodGeometry, make_tripod
 
@@ -409,9 +410,7 @@ def tripod_study(comm: MPI.Comm, size: dict) -> list[dict]:
     geometry = dict(scene.geometry)
     del geometry["h"]
     order = geometry.pop("order")
-    steps = [LoadStep(s.label, gravity=s.gravity, increments=s.increments,
-                      angles={} if s.servo_deg is None else
-                      {f"servo{i}": np.radians(angle) for i, angle in enumerate(s.servo_deg)}) for s in scene.steps]
+    steps = load_steps(scene)  # the scene's schedule: its servo angles in radians
     rows = []
     for h in size["tripod_h"]:
         tripod = make_tripod(comm, h, TripodGeometry(**geometry), order)
