@@ -155,3 +155,24 @@ def test_as_built_probes_do_not_depend_on_the_partition():
     for a, b in zip(parallel.steps, serial.steps):
         for name, value in b.probes.items():
             assert a.probes[name] == pytest.approx(value, rel=1e-7, abs=1e-10), (a.label, name)
+
+
+@pytest.mark.slow
+def test_design_gradients_of_the_servo_angles_as_built():
+    """``SceneDesign`` on the as-built case A: its parameters are the servos' names, its angles are from rest, and
+    the adjoint derivative of the centre's height and tilt in servo0's angle equals a central difference (h = 0.2°,
+    second order: to 1e-4 of the derivative, against a first-order one-sided error of ≈ 1e-3)."""
+    from fenicsfoam.design import SceneDesign
+    data = scene("tripod_case_a", steps=2)
+    data["fem"]["petsc"] = {"snes_rtol": 1e-12, "snes_atol": 1e-14}
+    design = SceneDesign(parse_scene(data), MPI.COMM_SELF, probes=["center_height", "center_tilt_x"])
+    assert design.servos == ("servo0", "servo1", "servo2") and design.servo_deg() == (19.0, 19.0, 19.0)
+    names = ["center_height", "center_tilt_x"]
+    design.solve()
+    gradient = design.gradient(names, ["servo0"])
+    theta = np.array(design.servo_deg())
+    plus = design.solve_last(theta + [0.2, 0.0, 0.0], increment_deg=1.0)
+    minus = design.solve_last(theta - [0.2, 0.0, 0.0], increment_deg=1.0)
+    for name in names:
+        central = (plus[name] - minus[name]) / 0.4
+        assert central == pytest.approx(gradient[name]["servo0"], rel=1e-4), name
