@@ -30,6 +30,10 @@ the horizontal axis tangent to the servo circle, a positive θ tilting the arm e
   paper's actuation lifts the horns: middle θ = rest − 19°, top θ = rest − 38° (the servo's range ends near the
   vertical, so the other sense is not available; the heights then rise, as measured).
 
+The shipped scenes now carry the as-built kinematics themselves (servo actuators ``[loads.servo.NAME]`` with the
+tutorial's clamp box, rest at 85.74°: `studies/tripod_as_built.py`); this study keeps its own rows as they were
+measured (the arm end r ≥ 45 mm clamped, rest at ``REST_DEG``), reading the foam from the flat scenes.
+
 The real rest pose itself (85.74°) is beyond what the model carries with this foam (the arms' compressed clamp
 corners lose strong ellipticity, see the ``kinematics`` rows), so the as-built rows use ``REST_DEG`` = 70°; the
 changes from rest depend little on the rest angle where it converges (``kinematics`` rows 60–80°).
