@@ -342,7 +342,8 @@ def test_an_interrupted_run_says_so_and_leaves_no_temporary_files(work, sig, cod
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "interrupted" and f"interrupted by {signal.Signals(sig).name}" in summary["error"]
     assert len(summary["steps"]) < 40
-    assert set(outputs_of(out)) <= {"summary.json", "probes.csv"}  # no .solution.* nor *.tmp left
+    done = {"solution.pvd", *(f"solution_{i:03d}_s{i}.vtu" for i in range(len(summary["steps"])))}
+    assert set(outputs_of(out)) <= {"summary.json", "probes.csv", "run.log", *done}  # no .solution.* nor *.tmp
     after = snapshot(work, exclude=out)
     assert after == {k: v for k, v in before.items() if not k.startswith("out")}
 
@@ -356,7 +357,8 @@ def test_sigint_through_mpirun_stops_every_rank_and_removes_the_temporaries(work
     summary = json.loads((out / "summary.json").read_text())
     # rank 0 writes "interrupted" when it regains control; if it was waiting in MPI it is killed: "incomplete"
     assert summary["status"] in ("interrupted", "incomplete") and len(summary["steps"]) < 40
-    assert set(outputs_of(out)) <= {"summary.json", "probes.csv"}
+    done = {"solution.pvd", *(f"solution_{i:03d}_s{i}.vtu" for i in range(len(summary["steps"]) + 1))}
+    assert set(outputs_of(out)) <= {"summary.json", "probes.csv", "run.log", *done}
 
 
 def test_a_rank_waiting_in_mpi_removes_its_temporaries_on_a_signal(tmp_path):

@@ -55,6 +55,8 @@ class Model:
     probes: dict[str, Callable]       #: name → probe, called with the displacement
     steps: list[LoadStep]
     materials: dict[str, dict]        #: region name → the resolved material's record (for summaries)
+    #: graded scenes: the per-cell foam data (:class:`fenicsfoam.grading.CellMaterials`), else None
+    cell_materials: Any = None
 
 
 # --------------------------------------------------------------------------------------------------
@@ -262,8 +264,13 @@ def load_steps(scene: Scene) -> list[LoadStep]:
     return steps
 
 
-def build_model(scene: Scene, comm) -> Model:
-    """Build the mesh, the problem and the probes of a validated scene (collective)."""
+def build_model(scene: Scene, comm, before_problem: Callable[[Any], Mapping[str, Any]] | None = None) -> Model:
+    """Build the mesh, the problem and the probes of a validated scene (collective).
+
+    ``before_problem(mesh)``, if given, is called once the mesh is built and before anything is assembled (e.g. to
+    size the run and refuse it, :mod:`fenicsfoam.sizing`); it returns PETSc options that the scene's own
+    ``[fem.petsc]`` options override (e.g. the solver chosen by size).
+    """
     resolved = {region.name: resolve_material(region) for region in scene.regions}  # before meshing: fail fast
     _check_orientation(scene, resolved)
     tagged = _build_mesh(scene, comm)
@@ -273,6 +280,7 @@ def build_model(scene: Scene, comm) -> Model:
     check_degree(mesh, scene.degree, extent)
     materials = {tag: resolved[region.name] for region in scene.regions for tag in region.tags}
     records = {region.name: _material_record(resolved[region.name]) for region in scene.regions}
+    cells = None
     if scene.graded:  # per-cell density and γ through the table (fenicsfoam.grading)
         _check_default_tables(scene, "graded foam fields")
         from fenicsfoam.grading import CellMaterials
@@ -294,9 +302,10 @@ def build_model(scene: Scene, comm) -> Model:
     except InputError as exc:
         raise SceneError(f"loads: {exc}") from exc
     gravity = (0.0, 0.0, 0.0) if scene.gravity is None else scene.gravity
+    chosen = {} if before_problem is None else dict(before_problem(mesh))
     problem = ElasticityProblem(mesh, field, orientation=a, model=scene.model, degree=scene.degree,
                                 gravity=gravity, motions=motions, loads=loads, prefix=PETSC_PREFIX,
-                                options=dict(scene.petsc))
+                                options={**chosen, **dict(scene.petsc)})
     context = BuildContext(scene, tagged, problem.V, problem)
     probes = {}
     for name in scene.probes:
@@ -310,4 +319,4 @@ def build_model(scene: Scene, comm) -> Model:
             if isinstance(exc, SceneError):
                 raise
             raise SceneError(f"probes: {name!r}: {exc}") from exc
-    return Model(tagged, problem, a, probes, load_steps(scene), records)
+    return Model(tagged, problem, a, probes, load_steps(scene), records, cells)
