@@ -386,7 +386,9 @@ class FieldSeries:
                 density[foam.cells], gamma[foam.cells] = foam.density, foam.gamma
             else:
                 inside = np.isin(tags, region.tags)
-                density[inside], gamma[inside] = (float(region.parameters[k]) for k in ("density", "gamma"))
+                for key, values in (("density", density), ("gamma", gamma)):
+                    value = region.parameters.get(key)
+                    values[inside] = value if isinstance(value, int | float) else np.nan
         static = {"region": tags.astype(np.int32), "density": density, "gamma": gamma}
         if model.orientation is not None:
             static["l_axis"] = cell_values(model.orientation)
