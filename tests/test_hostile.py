@@ -252,8 +252,9 @@ def test_a_rerun_replaces_the_previous_run_and_keeps_other_files(work, capsys):
     out = work / "out"
     (work / "one.toml").write_text(scene_text("first", "second"))
     assert fenicsfoam_main(["run", str(work / "one.toml"), "--out", str(out)]) == 0
-    assert outputs_of(out) == ["first.png", "probes.csv", "second.png", "solution.h5", "solution.npz",
-                               "solution.xdmf", "summary.json"]
+    assert outputs_of(out) == ["first.png", "probes.csv", "run.log", "second.png", "solution.h5", "solution.npz",
+                               "solution.pvd", "solution.xdmf", "solution_000_first.vtu", "solution_001_second.vtu",
+                               "summary.json"]
     assert sorted(json.loads((out / "summary.json").read_text())["files"]) == outputs_of(out)
     (out / "notes.txt").write_text("mine")
     (out / ".solution.stale").mkdir()  # as a killed run leaves them
@@ -262,8 +263,9 @@ def test_a_rerun_replaces_the_previous_run_and_keeps_other_files(work, capsys):
     before = snapshot(work, exclude=out)
     assert fenicsfoam_main(["run", str(work / "two.toml"), "--out", str(out)]) == 0
     summary = json.loads((out / "summary.json").read_text())
-    assert outputs_of(out) == ["notes.txt", "probes.csv", "summary.json", "third.png"]
-    assert summary["status"] == "complete" and sorted(summary["files"]) == ["probes.csv", "summary.json", "third.png"]
+    assert outputs_of(out) == ["notes.txt", "probes.csv", "run.log", "summary.json", "third.png"]
+    assert summary["status"] == "complete" and sorted(summary["files"]) == ["probes.csv", "run.log", "summary.json",
+                                                                             "third.png"]
     assert [s["label"] for s in summary["steps"]] == ["third"] and summary["error"] is None
     assert snapshot(work, exclude=out) == before
     mask = os.umask(0)

@@ -322,7 +322,11 @@ class XdmfSeries:
         if collective:
             with contextlib.suppress(Exception):
                 self._file.close()
-        shutil.rmtree(self._tmp, ignore_errors=True)
+        for _ in range(10):  # another rank may still be writing a file into it (until it waits in MPI): retry
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            if not self._tmp.exists():
+                break
+            time.sleep(0.05)
         discard_temporary(self._tmp)
 
 
