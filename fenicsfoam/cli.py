@@ -68,7 +68,8 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
                              "(summary.json: probes_std per step)")
     parser.add_argument("--solver", choices=("auto", "direct", "iterative"), default="auto",
                         help="linear solver of the Newton iterations: direct (MUMPS LU), iterative (Krylov + GAMG "
-                             "with the rigid-body near-null space), or auto: direct up to 60000 dofs, iterative above")
+                             "with the rigid-body near-null space), or auto: direct up to 1000000 dofs while its "
+                             "estimated memory fits, iterative otherwise")
     parser.add_argument("--force", action="store_true",
                         help="run even when the estimated memory (printed before assembly) exceeds the memory "
                              "available (otherwise refused, exit status 2)")

@@ -4,21 +4,24 @@
 building a function space. :func:`choose_solver` picks the linear solver of the Newton iterations:
 
 * ``direct``: MUMPS LU (:meth:`fenicsfoam.solver.ElasticityProblem.default_options`), up to
-  :data:`ITERATIVE_ABOVE_DOFS` dofs;
+  :data:`ITERATIVE_ABOVE_DOFS` dofs and as long as its estimated memory fits in the available memory;
 * ``iterative``: Krylov + GAMG with the rigid-body near-null space (attached to every Jacobian), CG for models whose
-  tangent is symmetric and GMRES for the corotational one (:func:`solver_options`), above it.
+  tangent is symmetric and GMRES for the corotational one (:func:`solver_options`), otherwise.
 
-The threshold is the measured crossover of the two on the Fig. 6 beam (``bench/bench_large_runs.py``; the
-benchmark page of 2026-11-27 "large runs"): below it LU is faster per step, above it the iterative solver is, and
-its memory grows linearly where LU's grows faster.
+Why by memory: measured on the Fig. 6 beam at P2 (``bench/bench_large_runs.py``; the benchmark page of 2026-11-27,
+"large runs"), LU is faster per Newton iteration at every measured size (10k–130k dofs) and its lead grows with
+size, so there is no time crossover to switch at; LU's memory grows faster than linearly and GAMG's linearly, so the
+iterative solver is what runs when LU would not fit, and above :data:`ITERATIVE_ABOVE_DOFS`, where the LU model
+would be extrapolated far beyond the measurements.
 
-:func:`estimate` is a model calibrated by the same measurements (serial, P2, corotational, one process): peak
-resident memory ``M = ranks × M0 + a · dofs^p`` and the time of one Newton iteration ``t = c · dofs^q``, with
-``(a, p, c, q)`` per solver (:data:`MODEL`); a step is estimated at :data:`NEWTON_PER_INCREMENT` iterations per
-increment. The model's error on the measured cases is on the benchmark page (memory within about 20 %, time within
-a factor of about 1.5); the estimate is an order of magnitude to decide with, not a promise. A run whose estimated
-memory exceeds the machine's available memory (``MemAvailable``, or the cgroup's limit if lower) is refused before
-assembly with :class:`TooLargeError` (exit status 2), unless forced.
+:func:`estimate` is a model calibrated by the same measurements (serial, P2, corotational, CPU time on a shared
+machine): peak resident memory ``M = ranks × M0 + a · dofs^p`` and the CPU time of one Newton iteration
+``t = c · dofs^q``, with ``(a, p, c, q)`` per solver (:data:`MODEL`), divided by the number of ranks; a step is
+estimated at :data:`NEWTON_PER_INCREMENT` iterations per increment. The model's error on the measured cases is on the
+benchmark page; the estimate is an order of magnitude to decide with, not a promise. A run whose estimated memory
+exceeds the machine's available memory (``MemAvailable``, or the cgroup's room if smaller; the environment variable
+``FENICSFOAM_AVAILABLE_MEMORY``, in bytes, overrides it) is refused before assembly with :class:`TooLargeError`
+(exit status 2), unless forced.
 """
 
 from __future__ import annotations
@@ -37,7 +40,7 @@ __all__ = ["ITERATIVE_ABOVE_DOFS", "MODEL", "NEWTON_PER_INCREMENT", "SOLVERS", "
 #: The linear solvers a run can be given (``auto`` chooses by size).
 SOLVERS = ("auto", "direct", "iterative")
 #: Above this many dofs ``auto`` picks the iterative solver (the measured crossover, rounded).
-ITERATIVE_ABOVE_DOFS = 60_000
+ITERATIVE_ABOVE_DOFS = 1_000_000
 #: Resident memory of one process before any mesh (Python, dolfinx, PETSc, the scene's forms), bytes.
 BASELINE_BYTES = 330 * 2**20
 #: ``solver: (a, p, c, q)``: memory ``a · dofs^p`` bytes above the baseline, ``c · dofs^q`` s per Newton iteration.
@@ -102,13 +105,14 @@ def size_of(mesh, degree: int) -> tuple[int, int]:
     return mesh.topology.index_map(tdim).size_global, 3 * nodes
 
 
-def choose_solver(solver: str, dofs: int) -> str:
-    """``direct`` or ``iterative``: ``solver`` itself, or for ``auto`` by :data:`ITERATIVE_ABOVE_DOFS`."""
+def choose_solver(solver: str, dofs: int, direct_fits: bool = True) -> str:
+    """``direct`` or ``iterative``: ``solver`` itself; for ``auto`` the direct solver up to :data:`ITERATIVE_ABOVE_DOFS`
+    dofs while its estimated memory fits (``direct_fits``), the iterative one otherwise."""
     if solver not in SOLVERS:
         raise InputError(f"solver must be one of {', '.join(SOLVERS)}, got {solver!r}")
     if solver != "auto":
         return solver
-    return "iterative" if dofs > ITERATIVE_ABOVE_DOFS else "direct"
+    return "direct" if dofs <= ITERATIVE_ABOVE_DOFS and direct_fits else "iterative"
 
 
 def solver_options(solver: str, symmetric: bool) -> dict[str, Any]:

@@ -92,13 +92,19 @@ def _sizer(scene: Scene, comm, solver: str, force: bool, announce):
         own = {key: str(scene.petsc[key]) for key in ("ksp_type", "pc_type") if key in scene.petsc}
         own.update({key: db.getString(PETSC_PREFIX + key) for key in ("ksp_type", "pc_type")
                     if db.hasName(PETSC_PREFIX + key)})
-        if own:  # the scene's or the command line's own linear solver
-            kind = "direct" if own.get("pc_type", "lu") in ("lu", "cholesky") else "iterative"
-        else:
-            kind = sizing.choose_solver(solver, dofs)
         increments = sum(step.increments for step in scene.steps)
-        estimate = comm.bcast(sizing.estimate(cells, dofs, kind, comm.size, increments) if comm.rank == 0 else None,
-                              root=0)
+
+        def estimate_for(kind: str) -> sizing.SizeEstimate:
+            return sizing.estimate(cells, dofs, kind, comm.size, increments)
+
+        if comm.rank == 0:
+            if own:  # the scene's or the command line's own linear solver
+                kind = "direct" if own.get("pc_type", "lu") in ("lu", "cholesky") else "iterative"
+            else:
+                kind = sizing.choose_solver(solver, dofs, solver != "auto" or estimate_for("direct").fits)
+            estimate = estimate_for(kind)
+        estimate = comm.bcast(estimate if comm.rank == 0 else None, root=0)
+        kind = estimate.solver
         made.append(estimate)
         text = f"scene {scene.name}: {estimate}" + (" (the scene's own solver options)" if own else "")
         announce(text)
