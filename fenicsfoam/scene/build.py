@@ -53,6 +53,8 @@ class Model:
     probes: dict[str, Callable]       #: name → probe, called with the displacement
     steps: list[LoadStep]
     materials: dict[str, dict]        #: region name → the resolved material's record (for summaries)
+    #: graded scenes: the per-cell foam data (:class:`fenicsfoam.grading.CellMaterials`), else None
+    cell_materials: Any = None
 
 
 # --------------------------------------------------------------------------------------------------
@@ -208,8 +210,13 @@ def check_materials(scene: Scene) -> dict[str, Any]:
     return resolved
 
 
-def build_model(scene: Scene, comm) -> Model:
-    """Build the mesh, the problem and the probes of a validated scene (collective)."""
+def build_model(scene: Scene, comm, before_problem: Callable[[Any], Mapping[str, Any]] | None = None) -> Model:
+    """Build the mesh, the problem and the probes of a validated scene (collective).
+
+    ``before_problem(mesh)``, if given, is called once the mesh is built and before anything is assembled (e.g. to
+    size the run and refuse it, :mod:`fenicsfoam.sizing`); it returns PETSc options that the scene's own
+    ``[fem.petsc]`` options override (e.g. the solver chosen by size).
+    """
     resolved = check_materials(scene)  # before meshing: fail fast
     tagged = _build_mesh(scene, comm)
     mesh, cell_tags = tagged.mesh, tagged.cell_tags
@@ -218,6 +225,7 @@ def build_model(scene: Scene, comm) -> Model:
     check_degree(mesh, scene.degree, extent)
     materials = {tag: resolved[region.name] for region in scene.regions for tag in region.tags}
     records = {region.name: _material_record(resolved[region.name]) for region in scene.regions}
+    cells = None
     if scene.graded:  # per-cell density and γ through the table (fenicsfoam.grading)
         from fenicsfoam.grading import CellMaterials
         try:
@@ -237,9 +245,10 @@ def build_model(scene: Scene, comm) -> Model:
     except InputError as exc:
         raise SceneError(f"loads: {exc}") from exc
     gravity = (0.0, 0.0, 0.0) if scene.gravity is None else scene.gravity
+    chosen = {} if before_problem is None else dict(before_problem(mesh))
     problem = ElasticityProblem(mesh, field, orientation=a, model=scene.model, degree=scene.degree,
                                 gravity=gravity, motions=motions, loads=loads, prefix=PETSC_PREFIX,
-                                options=dict(scene.petsc))
+                                options={**chosen, **dict(scene.petsc)})
     context = BuildContext(scene, tagged, problem.V, problem)
     probes = {}
     for name in scene.probes:
@@ -253,4 +262,4 @@ def build_model(scene: Scene, comm) -> Model:
             if isinstance(exc, SceneError):
                 raise
             raise SceneError(f"probes: {name!r}: {exc}") from exc
-    return Model(tagged, problem, a, probes, load_steps(scene), records)
+    return Model(tagged, problem, a, probes, load_steps(scene), records, cells)

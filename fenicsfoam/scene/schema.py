@@ -48,7 +48,7 @@ PETSC_PREFIX = "scene_"
 LABEL_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 #: Names of a run's fixed outputs (``summary.json``, ``probes.csv``, ``solution.xdmf``, ``orientation.png``): no
 #: step label may take one (compared without case, as case-insensitive file systems do).
-RESERVED_NAMES = ("summary", "probes", "solution", "orientation")
+RESERVED_NAMES = ("summary", "probes", "solution", "orientation", "run")
 
 
 # --------------------------------------------------------------------------------------------------
