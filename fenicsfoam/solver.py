@@ -45,7 +45,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from fenicsfoam.bcs import MotionBC, RigidMotion
-from fenicsfoam.constitutive import MaterialField, Model, PolarRotation, as_model, deformation_gradient
+from fenicsfoam.constitutive import MaterialField, Model, as_model, deformation_gradient
 from fenicsfoam.loads import Load
 from fenicsfoam.stability import EllipticityCheck, ellipticity_margin
 from foambase.errors import InputError, NotConvergedError
@@ -198,7 +198,8 @@ class ElasticityProblem:
         isotropic, refused if all are isotropic (the isotropic form is used and no orientation is needed).
     model
         A :class:`~fenicsfoam.constitutive.Model` or its name in :data:`~fenicsfoam.constitutive.MODELS`
-        (``"linear"``, ``"svk"`` or ``"corotational"``); ``self.model`` is the model object.
+        (``"linear"``, ``"svk"``, ``"corotational"``, ``"bonet_burton"`` or ``"corotational_sofa"``); ``self.model`` is
+        the model object.
     degree
         Lagrange degree of the displacement, 1 or 2.
     gravity
@@ -220,6 +221,10 @@ class ElasticityProblem:
         :class:`ConvergenceError`.
 
     """
+
+    #: ``snes_max_it`` by default for a model whose tangent is approximate (``Model.exact_tangent`` false), which
+    #: converges linearly rather than quadratically.
+    APPROXIMATE_TANGENT_MAX_IT = 200
 
     #: Residual norms below this fraction of ``k ‖x‖`` count as converged (see ``_convergence_test``).
     _ROUNDOFF_FLOOR = 1e-13
@@ -249,7 +254,7 @@ class ElasticityProblem:
         self.quadrature_degree = 2 * (degree - 1) if quadrature_degree is None else quadrature_degree
         self.V = fem.VectorFunctionSpace(mesh, ("CG", degree))
         self.u = fem.Function(self.V, name="displacement")
-        self.rotation = PolarRotation(self.u, self.quadrature_degree) if model.needs_rotation else None
+        self.rotation = model.rotation_field(self.u, self.quadrature_degree) if model.needs_rotation else None
 
         # Forms: one residual and its Jacobian; heterogeneity and loads are coefficient data.
         self._gravity = np.asarray(gravity, dtype=float).reshape(3)
@@ -292,7 +297,10 @@ class ElasticityProblem:
         self._synced = (None, None)  # (handle, state) of the vector last copied into u
         self._given_options = [prefix + key for key in (options or {}) if key != "mat_type"]
         self._used_options: set[str] = set()
-        options = {**self.default_options(), **(options or {})}
+        defaults = self.default_options()
+        if not model.exact_tangent:  # a fixed-rotation tangent: Newton converges linearly
+            defaults["snes_max_it"] = self.APPROXIMATE_TANGENT_MAX_IT
+        options = {**defaults, **(options or {})}
         db = PETSc.Options()
         # Options already in the database (the command line) win over ours.
         self._options = {prefix + key: value for key, value in options.items() if not db.hasName(prefix + key)}
