@@ -250,7 +250,7 @@ def test_ellipticity_over_compressions_with_the_paper_foam(cell):
     assert all(c.lost_cells == 6 for c in bb.values() if c.min_margin < 0)
 
 
-def small_solve(comm, model):
+def small_solve(comm, model, options=None, tag=""):
     """A TI block clamped at x = 0, compressed 3 %, lifted and turned at x = 1, under gravity: the mean displacement."""
     msh = mesh.create_box(comm, [[0, 0, 0], [1.0, 0.3, 0.3]], [6, 2, 2])
     field = MaterialField.uniform(msh, MILD)
@@ -259,11 +259,21 @@ def small_solve(comm, model):
     end = mesh.locate_entities_boundary(msh, 2, lambda x: np.isclose(x[0], 1.0))
     motions = [RigidMotion("clamp", clamp), RigidMotion("end", end, axis=(0, 0, 1), point=(1.0, 0.15, 0.15))]
     problem = ElasticityProblem(msh, field, orientation=a, model=model, motions=motions, gravity=(0, 0, -9.81),
-                                prefix=f"small_{model}_{comm.size}_")
+                                prefix=f"small_{model}_{comm.size}{tag}_", options=options)
     problem.run([LoadStep("load", gravity=1.0, angles={"end": 0.1}, translations={"end": (-0.03, 0.0, 0.02)},
                           increments=2)])
     mean = [comm.allreduce(fem.assemble_scalar(fem.form(problem.u[i] * ufl.dx)), op=MPI.SUM) for i in range(3)]
     return np.array(mean) / 0.09
+
+
+def test_sofa_equilibrium_is_the_same_with_the_frozen_tangent_alone():
+    """The default Newton system of the SOFA element (exact Jacobian matrix-free, preconditioned by the frozen-R
+    tangent) and plain iterations with the frozen-R tangent (SOFA's own) reach the same equilibrium."""
+    default = small_solve(MPI.COMM_SELF, "corotational_sofa")
+    frozen = small_solve(MPI.COMM_SELF, "corotational_sofa", tag="frozen",
+                         options={"snes_mf_operator": False, "ksp_type": "preonly", "snes_max_it": 400})
+    assert np.abs(default).max() > 1e-3
+    np.testing.assert_allclose(default, frozen, rtol=1e-7, atol=1e-10)
 
 
 @pytest.mark.mpi
