@@ -71,6 +71,7 @@ from dolfinx.mesh import Mesh, MeshTagsMetaClass
 
 from fenicsfoam.materials import Isotropic, Material, TransverseIsotropic
 from fenicsfoam.orientation import UNTAGGED, cell_function, owned_cell_tags
+from foambase.cells import num_owned_cells
 from foambase.errors import InputError
 
 __all__ = [
@@ -127,7 +128,7 @@ class MaterialField:
     @classmethod
     def uniform(cls, mesh: Mesh, material: Material) -> MaterialField:
         """The same material in every cell."""
-        return cls._build(mesh, {0: material}, np.zeros(_num_owned_cells(mesh), dtype=np.int64))
+        return cls._build(mesh, {0: material}, np.zeros(num_owned_cells(mesh), dtype=np.int64))
 
     @classmethod
     def from_regions(cls, mesh: Mesh, cell_tags: MeshTagsMetaClass, materials: Mapping[int, Material]
@@ -160,10 +161,6 @@ class MaterialField:
             rho[cells] = materials[tag].rho
         moduli = {name: cell_function(mesh, v, name=name) for name, v in zip(names, values)}
         return cls(materials=materials, isotropic=isotropic, moduli=moduli, rho=cell_function(mesh, rho, name="rho"))
-
-
-def _num_owned_cells(mesh: Mesh) -> int:
-    return mesh.topology.index_map(mesh.topology.dim).size_local
 
 
 # --------------------------------------------------------------------------------------------------

@@ -18,12 +18,13 @@ parameter                  meaning (unit)
 
 The *l* axis of a cell is ``a_c = R_z(offset + φ_c) a⁰_c(pitch)``, ``a⁰`` the scene's field without offset;
 ``∂a/∂φ = e_z × a`` (per radian) and for the spiral ``∂a⁰/∂p = cos p e_r − h sin p e_θ``
-(:func:`fenicsfoam.orientation.spiral_directions`). Material parameters act through the DG0 moduli and mass
-density of :class:`fenicsfoam.grading.CellMaterials` (the foam table's exact derivatives); servo angles through
-the Dirichlet values. :meth:`SceneDesign.gradient` chains the adjoint's per-cell gradients
-(:mod:`fenicsfoam.sensitivity`) to the parameters: one factorization and one adjoint solve per probe, whatever the
-number of parameters. Per-cell parameters and their gradients are arrays over the owned cells (their global
-order: :meth:`SceneDesign.gather`).
+(:func:`fenicsfoam.orientation.spiral_directions`). Material parameters (``E_solid``, ``density:REGION``,
+``gamma:REGION``) are first set in the scene itself and checked there (:func:`fenicsfoam.scene.vary_scene`),
+then act through the DG0 moduli and mass density of :class:`fenicsfoam.grading.CellMaterials` (the foam table's
+exact derivatives); servo angles through the Dirichlet values. :meth:`SceneDesign.gradient` chains the adjoint's
+per-cell gradients (:mod:`fenicsfoam.sensitivity`) to the parameters: one factorization and one adjoint solve
+per probe, whatever the number of parameters. Per-cell parameters and their gradients are arrays over the owned
+cells (their global order: :meth:`SceneDesign.gather`).
 
 A *scene solve* (:meth:`SceneDesign.solve`) runs the whole schedule from the reference state;
 :meth:`SceneDesign.solve_last` only moves the last step's servo angles from the current equilibrium (the
@@ -222,6 +223,10 @@ class SceneDesign:
         """Set parameters (``{name: value}``) and update the coefficient data; solve afterwards."""
         for name in values:
             self._check(name)
+        scalars = {n: v for n, v in values.items() if n == "E_solid" or ":" in n}
+        if scalars:  # the scene's own values, checked as a scene's (fenicsfoam.scene.vary_scene) before any change
+            from fenicsfoam.scene import vary_scene
+            self.scene = vary_scene(self.scene, {n: float(v) for n, v in scalars.items()})
         material, orientation = False, False
         servo = list(self.servo_deg()) if any(n in SERVOS for n in values) else None
         for name, value in values.items():

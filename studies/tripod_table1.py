@@ -27,13 +27,14 @@ from pathlib import Path
 
 from mpi4py import MPI
 
+from fenicsfoam.paper import TABLE_I as PAPER_TABLE_I
+from fenicsfoam.paper import table_i_changes
 from fenicsfoam.uncertainty import run_with_uncertainty
 from foambase.logs import setup_logging
 
 SCENES = Path(__file__).resolve().parents[1] / "demos" / "scenes"
 #: Table I changes from rest (middle, top): paper's simulation, real robot.
-TABLE_I = {"tripod_case_a": {"height": ((14.38, 22.31), (12.8, 21.2)), "angle": ((7.83, 18.21), (3.96, 20.49))},
-           "tripod_case_b": {"height": ((12.06, 18.33), (12.3, 20.5)), "angle": ((17.46, 36.52), (5.53, 22.1))}}
+TABLE_I = {name: table_i_changes(name) for name in PAPER_TABLE_I}
 PROBES = {"height": ("center_height", 1e3, "mm"), "angle": ("center_rotation", 1.0, "deg")}
 
 

@@ -65,6 +65,7 @@ from fenicsfoam import orientation as orient
 from fenicsfoam.bcs import RigidMotion
 from fenicsfoam.constitutive import MaterialField
 from fenicsfoam.materials import TransverseIsotropic, foam_material
+from fenicsfoam.paper import table_i_changes
 from fenicsfoam.probes import CenterHeight, CenterRotation
 from fenicsfoam.scene import load_scene, spiral_directions
 from fenicsfoam.solver import ConvergenceError, ElasticityProblem, LoadStep
@@ -88,8 +89,9 @@ CI_H = 0.006
 SYMMETRY_RTOL = 1e-9
 ACTUATION_DEG = (19.0, 38.0)
 #: Table I: changes from rest (middle, top) of the paper's simulation and of the real robot.
-TABLE_I = {"A": {"sim": {"dh": (14.38, 22.31), "da": (7.83, 18.21)}, "real": {"dh": (12.8, 21.2), "da": (3.96, 20.49)}},
-           "B": {"sim": {"dh": (12.06, 18.33), "da": (17.46, 36.52)}, "real": {"dh": (12.3, 20.5), "da": (5.53, 22.1)}}}
+TABLE_I = {case: {who: {"dh": table_i_changes(scene)["height"][k], "da": table_i_changes(scene)["angle"][k]}
+                  for k, who in enumerate(("sim", "real"))}
+           for case, scene in (("A", "tripod_case_a"), ("B", "tripod_case_b"))}
 
 
 @dataclass

@@ -34,7 +34,8 @@ The package, in the order of the data flow:
 * :mod:`~fenicsfoam.scene.schema` — one reader per section, :func:`parse_scene`, :func:`load_scene` → :class:`Scene`;
 * :mod:`~fenicsfoam.scene.build` — materials, mesh, orientation, motions, problem and probes (modelling choices);
 * :mod:`~fenicsfoam.scene.run` — :func:`run_scene`, the load loop;
-* :mod:`~fenicsfoam.scene.outputs` — :class:`SceneResult`, ``summary.json``, ``probes.csv``, XDMF, pictures.
+* :mod:`~fenicsfoam.scene.outputs` — :class:`SceneResult`, ``summary.json``, ``probes.csv``, XDMF, pictures;
+* :mod:`~fenicsfoam.scene.vary` — :func:`vary_scene`, a parsed scene with other region values, checked.
 """
 
 from fenicsfoam.materials import FOAM_FITS
@@ -53,6 +54,7 @@ from fenicsfoam.scene.schema import (
     parse_scene,
 )
 from fenicsfoam.scene.table import SceneError
+from fenicsfoam.scene.vary import vary_scene
 
 __all__ = [
     "FOAM_FITS",
@@ -74,4 +76,5 @@ __all__ = [
     "parse_scene",
     "run_scene",
     "spiral_directions",
+    "vary_scene",
 ]

@@ -21,7 +21,6 @@ probe kinds their probes (:mod:`fenicsfoam.scene.kinds`). Modelling choices:
 
 from __future__ import annotations
 
-import importlib
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
@@ -29,20 +28,19 @@ from typing import Any
 
 import numpy as np
 
-from fenicsfoam import materials as _materials
 from fenicsfoam import orientation as orient
 from fenicsfoam.constitutive import MaterialField
-from fenicsfoam.materials import Isotropic, TransverseIsotropic
+from fenicsfoam.material import MATERIAL_KINDS, Isotropic, tabulated_regions
 from fenicsfoam.meshcheck import check_degree, check_units, mesh_extent
 from fenicsfoam.scene.kinds import GROUP_PROBE_KINDS, LOAD_KINDS, PROBE_KINDS, BuildContext
 from fenicsfoam.scene.schema import PETSC_PREFIX, Region, Scene
 from fenicsfoam.scene.table import SceneError, key_error
 from fenicsfoam.solver import ElasticityProblem, LoadStep
 from foambase.errors import InputError
+from foambase.imports import import_callable
 from foambase.mpi import on_every_rank
-from homogenization.tensors import InadmissibleMaterialError
 
-__all__ = ["Model", "build_model", "load_steps", "resolve_material"]
+__all__ = ["Model", "build_model", "check_materials", "load_steps", "resolve_material"]
 
 
 @dataclass
@@ -61,56 +59,24 @@ class Model:
 # Materials and orientation
 # --------------------------------------------------------------------------------------------------
 def resolve_material(region: Region):
-    """The :mod:`fenicsfoam.materials` object of a region (foam: through ``foam_material``).
+    """The material of a region, by its kind's resolver (:data:`fenicsfoam.material.MATERIAL_KINDS`).
 
     A value the material refuses is a :class:`SceneError` naming the key (``regions.plate.E_solid``; for a
     condition on several constants the first one the message mentions, with the others).
     """
-    path = f"regions.{region.name}"
     try:
-        if region.material == "isotropic":
-            return Isotropic(**region.parameters)
-        if region.material == "transverse_isotropic":
-            return TransverseIsotropic(**region.parameters)
-        foam_material = getattr(_materials, "foam_material", None)
-        if foam_material is None:
-            raise SceneError(f"{path}: foam regions need fenicsfoam.materials.foam_material (the homogenized "
-                             "tables), which this installation lacks; use explicit constants")
-        params = dict(region.parameters)
-        density, gamma = (_representative(params.pop(key), key) for key in ("density", "gamma"))
-        for key in ("density", "gamma"):  # every per-tag value is checked against the table before meshing
-            spec = region.parameters[key]
-            for value in spec.get("per_tag", {}).values() if isinstance(spec, dict) else ():
-                foam_material(value if key == "density" else density, value if key == "gamma" else gamma,
-                              params["E_solid"], params["nu_solid"],
-                              **{k: params[k] for k in ("rho_solid", "fit", "table") if k in params})
-        return foam_material(density, gamma, params.pop("E_solid"), params.pop("nu_solid"), **params)
-    except (InadmissibleMaterialError, ValueError) as exc:
+        return MATERIAL_KINDS[region.material].resolve(region.parameters)
+    except ValueError as exc:  # InadmissibleMaterialError, InputError
         if isinstance(exc, SceneError):
             raise
-        raise key_error(path, region.parameters, str(exc)) from exc
-
-
-def _representative(spec, key: str) -> float:
-    """The value of a foam field that stands for its region before meshing (its material's kind, the summary).
-
-    The number, a per-tag table's first value, or for a function the middle of the foam table's range
-    (arithmetic for density, geometric for γ).
-    """
-    if not isinstance(spec, dict):
-        return spec
-    if "per_tag" in spec:
-        return next(iter(spec["per_tag"].values()))
-    from fenicsfoam.grading import FoamTable
-    lo, hi = getattr(FoamTable(), f"{key}_range")
-    return 0.5 * (lo + hi) if key == "density" else math.sqrt(lo * hi)
+        raise key_error(f"regions.{region.name}", region.parameters, str(exc)) from exc
 
 
 def _check_default_tables(scene: Scene, what: str) -> None:
     """Per-cell foam constants (:mod:`fenicsfoam.grading`) read the default (cube) foam table only."""
     for region in scene.regions:
         table = region.parameters.get("table")
-        if region.material == "foam" and table not in (None, "cube"):
+        if MATERIAL_KINDS[region.material].tabulated and table not in (None, "cube"):
             raise SceneError(f"regions.{region.name}.table: {what} read the default foam table 'cube' only, got "
                              f"{table!r}; remove the key or use numbers without blends")
 
@@ -134,13 +100,10 @@ def _graded_record(region: Region, material, cells, comm) -> dict[str, Any]:
 
 def _import_callable(spec: str) -> Callable[[np.ndarray], np.ndarray]:
     """The user's ``module:function``; any exception it raises becomes a :class:`SceneError` naming it."""
-    module, _, name = spec.partition(":")
     try:
-        function = getattr(importlib.import_module(module), name)
-    except Exception as exc:  # ImportError, AttributeError, or whatever the module raises when imported
-        raise SceneError(f"orientation.function: cannot import {spec!r}: {type(exc).__name__}: {exc}") from exc
-    if not callable(function):
-        raise SceneError(f"orientation.function: {spec!r} is a {type(function).__name__}, not a function")
+        function = import_callable(spec)
+    except InputError as exc:
+        raise SceneError(f"orientation.function: {exc}") from exc
 
     def directions(x: np.ndarray) -> np.ndarray:
         try:
@@ -262,10 +225,23 @@ def load_steps(scene: Scene) -> list[LoadStep]:
     return steps
 
 
+def check_materials(scene: Scene) -> dict[str, Any]:
+    """The material of every region, resolved and checked before anything is built (:class:`SceneError`).
+
+    Every region's values (:func:`resolve_material`), the orientation the materials need, and the table graded
+    fields read. The first step of :func:`build_model`, and the check of every variation of a scene
+    (:func:`fenicsfoam.scene.vary.vary_scene`).
+    """
+    resolved = {region.name: resolve_material(region) for region in scene.regions}
+    _check_orientation(scene, resolved)
+    if scene.graded:
+        _check_default_tables(scene, "graded foam fields")
+    return resolved
+
+
 def build_model(scene: Scene, comm) -> Model:
     """Build the mesh, the problem and the probes of a validated scene (collective)."""
-    resolved = {region.name: resolve_material(region) for region in scene.regions}  # before meshing: fail fast
-    _check_orientation(scene, resolved)
+    resolved = check_materials(scene)  # before meshing: fail fast
     tagged = _build_mesh(scene, comm)
     mesh, cell_tags = tagged.mesh, tagged.cell_tags
     extent = mesh_extent(mesh)
@@ -274,16 +250,14 @@ def build_model(scene: Scene, comm) -> Model:
     materials = {tag: resolved[region.name] for region in scene.regions for tag in region.tags}
     records = {region.name: _material_record(resolved[region.name]) for region in scene.regions}
     if scene.graded:  # per-cell density and γ through the table (fenicsfoam.grading)
-        _check_default_tables(scene, "graded foam fields")
         from fenicsfoam.grading import CellMaterials
         try:
             cells = CellMaterials.from_regions(mesh, cell_tags, scene.regions, materials=resolved, blends=scene.blends)
             field = cells.material_field(mesh, materials)
         except InputError as exc:
             raise SceneError(f"regions: {exc}") from exc
-        for region in scene.regions:
-            if region.material == "foam":
-                records[region.name] = _graded_record(region, resolved[region.name], cells, comm)
+        for region in tabulated_regions(scene.regions):
+            records[region.name] = _graded_record(region, resolved[region.name], cells, comm)
     else:
         field = MaterialField.from_regions(mesh, cell_tags, materials)
     a = _build_orientation(scene, mesh, cell_tags)

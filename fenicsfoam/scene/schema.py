@@ -19,33 +19,20 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from fenicsfoam.materials import FOAM_FITS
+from fenicsfoam.material.kinds import GRADED_KEYS, MATERIAL_KINDS, tabulated_regions
 from fenicsfoam.orientation import HANDEDNESS
 from fenicsfoam.scene.kinds import GROUP_PROBE_KINDS, LOAD_KINDS, PROBE_KINDS, MeshInfo
 from fenicsfoam.scene.table import SceneError, _Table, _tags, _type_name, _vector
 
 __all__ = ["LABEL_PATTERN", "RESERVED_NAMES", "Region", "Scene", "Step", "load_scene", "parse_scene"]
 
+#: Per material kind (:data:`fenicsfoam.material.MATERIAL_KINDS`): its numeric keys, ``key: (required, default)``.
 MATERIAL_KEYS: dict[str, dict[str, tuple[bool, float | None]]] = {
-    # key: (required, default)
-    "isotropic": {"E": (True, None), "nu": (True, None), "rho": (False, 0.0)},
-    "transverse_isotropic": {"E_t": (True, None), "E_l": (True, None), "nu_t": (True, None),
-                             "nu_tl": (True, None), "G_l": (True, None), "rho": (False, 0.0)},
-    "foam": {"density": (True, None), "gamma": (True, None), "E_solid": (True, None), "nu_solid": (True, None),
-             "rho_solid": (False, 0.0)},
-}
-_POSITIVE = {"check": lambda v: v > 0, "valid": "a number > 0"}
+    name: {k.name: (k.required, k.default) for k in kind.keys if k.form in ("number", "field", "modulus")}
+    for name, kind in MATERIAL_KINDS.items()}
 #: Range checks of the material constants (the material classes check admissibility again).
-MATERIAL_CHECKS: dict[str, dict[str, Any]] = {
-    "E": _POSITIVE, "E_t": _POSITIVE, "E_l": _POSITIVE, "G_l": _POSITIVE, "E_solid": _POSITIVE,
-    "nu": {"check": lambda v: -1 < v < 0.5, "valid": "-1 < nu < 0.5"},
-    "nu_solid": {"check": lambda v: -1 < v < 0.5, "valid": "-1 < nu_solid < 0.5"},
-    "nu_t": {"check": lambda v: -1 < v < 1, "valid": "-1 < nu_t < 1"},
-    "rho": {"check": lambda v: v >= 0, "valid": "a density >= 0 (kg/m³)"},
-    "rho_solid": {"check": lambda v: v >= 0, "valid": "a density >= 0 (kg/m³)"},
-    "density": {"check": lambda v: 0 < v <= 1, "valid": "a relative density in (0, 1]"},
-    "gamma": {"check": lambda v: 0 < v <= 1, "valid": "an anisotropy ratio in (0, 1] (1: isotropic)"},
-}
+MATERIAL_CHECKS: dict[str, dict[str, Any]] = {k.name: {"check": k.check, "valid": k.valid}
+                                              for kind in MATERIAL_KINDS.values() for k in kind.keys if k.check}
 ORIENTATION_KINDS = ("uniform", "per_tag", "spiral", "callable")
 #: The options prefix of every scene's SNES (command-line options: ``-scene_snes_rtol 1e-8``).
 PETSC_PREFIX = "scene_"
@@ -66,8 +53,8 @@ class Region:
 
     name: str
     tags: tuple[int, ...]
-    material: str                     #: "isotropic" | "transverse_isotropic" | "foam"
-    parameters: Mapping[str, Any]     #: the material's keyword arguments (foam: also ``fit``)
+    material: str                     #: the kind, a key of :data:`fenicsfoam.material.MATERIAL_KINDS`
+    parameters: Mapping[str, Any]     #: the values of the kind's keys (foam: also ``fit``, and ``table`` if given)
 
 
 @dataclass(frozen=True)
@@ -251,10 +238,6 @@ def _foam_table_name(region: _Table, base: Path | None) -> str:
     return value
 
 
-#: Keys of a foam region that may be fields (a per-tag table or a function of the cell midpoints).
-GRADED_KEYS = ("density", "gamma")
-
-
 def _read_field(table: _Table, key: str, tags: tuple[int, ...], named: Mapping[str, tuple[int, ...]]):
     """A foam's ``density`` or ``gamma``: a number, a per-tag table or a function (:mod:`fenicsfoam.grading`).
 
@@ -292,20 +275,29 @@ def _read_field(table: _Table, key: str, tags: tuple[int, ...], named: Mapping[s
 
 def _read_region(name: str, table: _Table, named: Mapping[str, tuple[int, ...]], base: Path | None = None
                  ) -> Region:
+    """A region: its tags, its kind (:data:`~fenicsfoam.material.MATERIAL_KINDS`) and the kind's keys.
+
+    Each key is read in its form: a number, a field, a modulus or its calibration, a choice, a foam table.
+    """
     tags = _tags(table.raw("tags", required=True), table.key("tags"), named, "region")
-    material = table.string("material", required=True, choices=tuple(MATERIAL_KEYS))
-    calibrated = material == "foam" and isinstance(table.data.get("E_solid"), dict)
-    foam_table = _foam_table_name(table, base) if material == "foam" and "table" in table.data else None
-    parameters = {key: (_calibrated_E_solid(name, table, base, foam_table) if calibrated and key == "E_solid" else
-                        _read_field(table, key, tags, named) if material == "foam" and key in GRADED_KEYS else
-                        table.number(key, required=required, default=default, **MATERIAL_CHECKS.get(key, {})))
-                  for key, (required, default) in MATERIAL_KEYS[material].items()}
-    if material == "foam":
-        parameters["fit"] = table.string("fit", default="transverse", choices=FOAM_FITS)
-        if foam_table is not None:
-            parameters["table"] = foam_table
+    kind = MATERIAL_KINDS[table.string("material", required=True, choices=tuple(MATERIAL_KINDS))]
+    forms = {k.form: k.name for k in kind.keys}
+    foam_table = _foam_table_name(table, base) if "table" in forms and forms["table"] in table.data else None
+    parameters = {}
+    for key in kind.keys:
+        checks = {"check": key.check, "valid": key.valid} if key.check else {}
+        if key.form == "modulus" and isinstance(table.data.get(key.name), dict):
+            parameters[key.name] = _calibrated_E_solid(name, table, base, foam_table)
+        elif key.form == "field":
+            parameters[key.name] = _read_field(table, key.name, tags, named)
+        elif key.form in ("number", "modulus"):
+            parameters[key.name] = table.number(key.name, required=key.required, default=key.default, **checks)
+        elif key.form == "choice":
+            parameters[key.name] = table.string(key.name, default=key.default, choices=key.choices)
+        elif foam_table is not None:
+            parameters[key.name] = foam_table
     table.done()
-    return Region(name, tags, material, parameters)
+    return Region(name, tags, kind.name, parameters)
 
 
 def _read_regions(scene: _Table, mesh: MeshInfo, base: Path | None = None) -> tuple[Region, ...]:
@@ -381,9 +373,9 @@ def _read_blends(scene: _Table, regions: tuple[Region, ...]) -> tuple[dict[str, 
             raise SceneError(f"{table.key('regions')}: expected two distinct region names, got {pair!r}")
         for name in pair:
             region = by_name.get(name)
-            if region is None or region.material != "foam":
+            if region is None or not MATERIAL_KINDS[region.material].tabulated:
                 raise SceneError(f"{table.key('regions')}: {name!r} is not a foam region "
-                                 f"(foam regions: {sorted(n for n, r in by_name.items() if r.material == 'foam')})")
+                                 f"(foam regions: {sorted(r.name for r in tabulated_regions(regions))})")
             for key in GRADED_KEYS:
                 if isinstance(region.parameters[key], dict):
                     raise SceneError(f"{table.key('regions')}: region {name!r} gives {key} as a field; a blend "
