@@ -5,8 +5,8 @@ kinematics (each servo moved 35 mm towards the centre and its horn turned to the
 increments, then +19° and +38°), on the paper's mesh size (P1), to the real rest ``REAL_REST_DEG`` = 85.74°.
 Foams: ``table`` (the shipped `tripod_case_b.toml` plate, from today's foam table) and ``paper`` (the constants of
 the paper's own SOFA simulation, `PAPER_FOAM`, mapped as docs/conventions.md describes). Each row reports the rest
-angle reached (the failed step's load factor if the rest is not reached), Δheight and Δangle of the centre from
-rest to middle and top, Newton iterations per step and the wall time.
+height and twist of the centre at rest, or the step that failed, the load factor reached and why; Δheight and
+Δangle of the centre from rest to middle and top; Newton iterations per step; wall and CPU time.
 
 Run (serial, ≈ 1–4 min per row on a shared 2-core machine):
 `python studies/tripod_models.py [--models corotational corotational_sofa bonet_burton] [--foams table paper]
@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
 
 from mpi4py import MPI
@@ -52,12 +53,14 @@ def main() -> int:
         for model in args.models:
             case = Case("models", f"{model}, {foam} foam", case="B", model=model, kinematics="as_built",
                         rest_deg=args.rest, h=args.h)
+            cpu = time.process_time()
             row = run_case(case, foams[foam], comm)
+            cpu = comm.allreduce(time.process_time() - cpu, op=MPI.SUM)
             rows.append(row)
             if comm.rank == 0:
                 print(f"{row.label:36s} rest h {row.rest_height:7.2f} a {row.rest_angle:7.2f}  Δh {row.dh_middle:6.2f} "
                       f"{row.dh_top:6.2f}  Δa {row.da_middle:6.2f} {row.da_top:6.2f}  Newton {row.newton:12s} "
-                      f"{row.wall_s:6.1f} s  {row.status}", flush=True)
+                      f"{row.wall_s:6.1f} s wall {cpu:6.1f} s CPU  {row.status}", flush=True)
     if comm.rank == 0:
         for who, v in TABLE_I["B"].items():
             print(f"{'Table I case B, paper ' + who:36s} {'':25s} Δh {v['dh'][0]:6.2f} {v['dh'][1]:6.2f}  "
