@@ -12,7 +12,8 @@ Layout of a scene (SI units; servo angles in degrees)::
     name = "tripod_case_b"
     [geometry]      builder = "beam" | "tripod" | "finger", and the builder's parameters (h, order, sizes),
                     or builder = "file", path = "robot.msh" (gmsh; relative to the scene file's directory)
-    [fem]           model = "linear" | "svk" | "corotational", degree = 2 | 1, [fem.petsc] options
+    [fem]           model = "linear" | "svk" | "corotational" | "bonet_burton" | "corotational_sofa",
+                    degree = 2 | 1, [fem.petsc] options
     [regions.NAME]  tags = int | [ints] | "named region", material = "isotropic" | "transverse_isotropic" | "foam"
                     (foam: E_solid = a modulus, or {calibration = "calibration.json"} relative to the scene file)
     [orientation]   kind = "uniform" | "per_tag" | "spiral" | "callable"  (only with anisotropic regions)
