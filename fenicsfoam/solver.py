@@ -278,6 +278,8 @@ class ElasticityProblem:
         self._factors = {}
         for load in loads:
             load.setup(self.V)
+            if hasattr(load, "bind_stress"):  # contact (Nitsche): the body's traction on its facets
+                load.bind_stress(model, material, orientation)
             self._factors[load.name] = factor = fem.Constant(mesh, 0.0)
             term = load.residual(self.u, v, factor, model.finite_strain)
             if term is not None:
