@@ -3,7 +3,8 @@
 Both are solved by the nodal Green-preconditioned CG (``scheme="pcg"`` of :func:`homogenization.fft.homogenize_fft`)
 with a zero-stiffness void and a solid of E = 1, ν = 0.3, on the foams ``VoronoiFoam(--cells, --density, γ,
 seed=--seed, box="equiaxed", distance=...)`` — struts (``euclidean``) and walls (``polyhedral``), γ = 1 and 0.1 —
-each at two grids: ``--cubic N N'`` (struts; walls ``--cubic-walls``, default 64 96) for γ = 1 (N³ voxels) and ``--flat A B`` for γ = 0.1 (grids ``(A/5) × A × A``,
+each at two grids: ``--cubic N N'`` (struts; walls ``--cubic-walls``, default 64 96) for γ = 1 (N³ voxels) and
+``--flat A B`` for γ = 0.1 (grids ``(A/5) × A × A``,
 voxels twice as long along y and z as along x, as the shipped wall-foam table). Every run is one fresh process
 (its peak RSS is its own), one thread, tolerance ``--tol``.
 
@@ -53,9 +54,7 @@ MODULI = ("E1", "E2", "E3", "G23", "G13", "G12")
 
 
 def moduli(C) -> np.ndarray:
-    from homogenization.tensors import engineering_constants
-
-    from homogenization.tensors import InadmissibleMaterialError
+    from homogenization.tensors import InadmissibleMaterialError, engineering_constants
 
     try:
         e = engineering_constants(np.asarray(C))
@@ -154,7 +153,8 @@ def hinge_rows(seeds) -> list[dict]:
                 row["edge_contacts"] = "/".join(map(str, row["edge_contacts"]))
                 rows.append(row)
                 print(f"{table:20s} ρ={density:<5g} γ={gamma:<4g} seed {seed} {row['grid']:>11s}: solid "
-                      f"{r.solid_voxels:9d}  edge-only {row['edge_contacts']:>14s}  corner-only {r.corner_contacts:5d}  "
+                      f"{r.solid_voxels:9d}  edge-only {row['edge_contacts']:>14s}  "
+                      f"corner-only {r.corner_contacts:5d}  "
                       f"components {r.components:4d}  hinged islands {r.hinged_islands:3d} ({r.hinged_island_voxels} "
                       f"voxels)  floating {r.floating_islands:3d} ({r.floating_island_voxels} voxels)", flush=True)
     return rows

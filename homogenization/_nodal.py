@@ -417,9 +417,11 @@ GAUSS = (0.5 - 0.5 / np.sqrt(3.0), 0.5 + 0.5 / np.sqrt(3.0))  #: 2-point Gauss a
 
 
 def hex8_gradients(h: np.ndarray, points=None) -> np.ndarray:
-    """Mandel strain matrices ``B_g`` (6×24) of a trilinear voxel of sizes ``h`` at the points ``g`` (default the
-    2×2×2 Gauss points), local coordinates in ``[0, 1]³``; node ``n = 4 da + 2 db + dc`` at ``(da, db, dc)``, dof
-    ``3 n + c``. ``points=[(0.5, 0.5, 0.5)]`` gives the one-point (rotated) gradient."""
+    """Mandel strain matrices ``B_g`` (6×24) of a trilinear voxel of sizes ``h`` at the points ``g``.
+
+    Default points: the 2×2×2 Gauss points; local coordinates in ``[0, 1]³``; node ``n = 4 da + 2 db + dc`` at
+    ``(da, db, dc)``, dof ``3 n + c``. ``points=[(0.5, 0.5, 0.5)]`` gives the one-point (rotated) gradient.
+    """
     if points is None:
         points = [(a, b, c) for a in GAUSS for b in GAUSS for c in GAUSS]
     out = []
@@ -441,8 +443,11 @@ def hex8_gradients(h: np.ndarray, points=None) -> np.ndarray:
 
 
 def hex8_element_matrices(tables: np.ndarray, h: np.ndarray, points=None) -> np.ndarray:
-    """Element stiffnesses ``Ke[p] = mean_g B_gᵀ C_p B_g`` (24×24) of every phase, normalised like the rotated
-    stencil (``K = Σ_voxels Ke``: no voxel-volume factor); ``C_p`` the Mandel stiffness behind ``tables[p]``."""
+    """Element stiffnesses ``Ke[p] = mean_g B_gᵀ C_p B_g`` (24×24) of every phase.
+
+    Normalised like the rotated stencil (``K = Σ_voxels Ke``: no voxel-volume factor); ``C_p`` the Mandel
+    stiffness behind ``tables[p]``.
+    """
     B = hex8_gradients(h, points)
     Ke = np.empty((len(tables), 24, 24))
     for p, T in enumerate(tables):

@@ -227,7 +227,8 @@ def _homogenize_check(parser: argparse.ArgumentParser, args: argparse.Namespace)
     if comm is not None:
         need(args.scheme in (None, "pcg") and args.discretization in ("rotated", "hex8"),
              f"under mpirun with {comm.size} ranks homogenize distributes one RVE, which runs --scheme pcg with "
-             f"--discretization rotated or hex8 only; got --scheme {args.scheme} --discretization {args.discretization}")
+             f"--discretization rotated or hex8 only; got --scheme {args.scheme} "
+             f"--discretization {args.discretization}")
     if comm is None or comm.rank == 0:
         _warn_threads(args.threads)  # per rank: under mpirun a rank's CPUs are those it is bound to
 

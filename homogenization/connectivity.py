@@ -79,7 +79,7 @@ def periodic_label(solid: np.ndarray, connectivity: int = 1) -> tuple[np.ndarray
 
 
 def _corner_table() -> np.ndarray:
-    """For each of the 256 patterns of a 2×2×2 block (bit ``4 da + 2 db + dc``): does it hold a corner contact?"""
+    """Whether each of the 256 patterns of a 2×2×2 block (bit ``4 da + 2 db + dc``) holds a corner contact."""
     table = np.zeros(256, dtype=bool)
     neighbours = [[n ^ 1, n ^ 2, n ^ 4] for n in range(8)]
     for code in range(256):
@@ -146,6 +146,7 @@ class ConnectivityReport:
         return int(sum(self.edge_contacts) + self.corner_contacts)
 
     def as_dict(self) -> dict:
+        """The fields, ``edge_contacts`` as a list, and ``hinges``."""
         out = {k: getattr(self, k) for k in self.__dataclass_fields__}
         out["edge_contacts"] = list(self.edge_contacts)
         out["hinges"] = self.hinges
@@ -177,9 +178,12 @@ def connectivity(image) -> ConnectivityReport:
 
 
 def remove_floating_islands(image) -> np.ndarray:
-    """The image with every solid component that touches the main solid nowhere (not even at an edge or a corner)
-    set to 0. Such islands carry no load with a zero-stiffness void, so ``C`` does not change; the rigid-body
-    modes they add to the stiffness disappear. Hinged islands are kept (they may carry load through the hinge)."""
+    """The image with every solid component that touches the main solid nowhere set to 0.
+
+    Nowhere: not even at an edge or a corner. Such islands carry no load with a zero-stiffness void, so ``C``
+    does not change; the rigid-body modes they add to the stiffness disappear. Hinged islands are kept (they may
+    carry load through the hinge).
+    """
     solid = _check_image(image)
     touching, n = periodic_label(solid, 3)
     out = np.array(image, copy=True)

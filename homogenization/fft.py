@@ -787,9 +787,9 @@ def homogenize_fft(
         the nodal solution gives there (the problem does not determine it; its stress is zero).
     comm
         mpi4py communicator: with more than one rank the image is distributed over the ranks in slabs of planes
-        along axis 0 (:func:`slab_planes`), the FFTs by mpi4py-fft; scheme
-        ``"pcg"``, discretization ``"rotated"`` or ``"hex8"``. Every rank returns the same result (``info`` adds ``ranks``,
-        ``planes``, ``work_bytes_per_rank``, ``peak_rss_bytes_per_rank``). At most ``min(N1, N3//2 + 1)`` ranks
+        along axis 0 (:func:`slab_planes`), the FFTs by mpi4py-fft; scheme ``"pcg"``, discretization
+        ``"rotated"`` or ``"hex8"``. Every rank returns the same result (``info`` adds ``ranks``, ``planes``,
+        ``work_bytes_per_rank``, ``peak_rss_bytes_per_rank``). At most ``min(N1, N3//2 + 1)`` ranks
         (the spectrum is split along its last axis); any rank count up to that works (uneven slabs). Call it on
         every rank of ``comm``.
     slab
@@ -965,7 +965,8 @@ def _check_inputs_distributed(phases, materials, comm, slab, **settings) -> _Run
     def own():
         if (scheme or "pcg") != "pcg" or discretization not in NODAL:
             raise InputError(f"distributed mode (comm with {size} ranks) runs scheme='pcg', "
-                             f"discretization 'rotated' or 'hex8'; got scheme={scheme!r}, discretization={discretization!r}")
+                             f"discretization 'rotated' or 'hex8'; got scheme={scheme!r}, "
+                             f"discretization={discretization!r}")
         image = np.asarray(phases)
         if slab and image.ndim == 3 and image.shape[0] == 0:  # an empty slab: too many ranks (below)
             return image

@@ -3,12 +3,12 @@ assembled stiffness and its Green operator, cross-checks with the rotated scheme
 
 import numpy as np
 import pytest
+from test_fft import C_SOFT, TI, laminate, layered_image, rel, sphere_image, world
 
 from foambase.errors import InputError
 from homogenization import _nodal
 from homogenization.fft import homogenize_fft
 from homogenization.tensors import isotropic_voigt, voigt_to_mandel
-from test_fft import C_SOFT, TI, laminate, layered_image, rel, sphere_image, world
 
 VOID = np.zeros((6, 6))
 
@@ -96,7 +96,6 @@ def test_stencil_and_green_operator_are_the_assembled_hexahedron_stiffness():
     K = assembled(img, materials, h)
     u = np.random.default_rng(5).random((3,) + shape)
     expected = (K @ u.transpose(1, 2, 3, 0).ravel()).reshape(shape + (3,)).transpose(3, 0, 1, 2) / h.prod()
-    from homogenization import _native
 
     for native in (True, False):
         ws = _nodal.Hex8Workspace(img, _nodal.stiffness_tables(materials), shape, box, 1, False)
@@ -181,7 +180,8 @@ def test_hex8_equals_the_voxel_finite_element_model():
 
     from homogenization.fem import homogenize_fem
     from meshes.foam import VoronoiFoam
-    from meshes.voxel import SOLID, VOID as VOID_TAG, voxel_mesh
+    from meshes.voxel import SOLID, voxel_mesh
+    from meshes.voxel import VOID as VOID_TAG
 
     image = VoronoiFoam(3, 0.3, 1.0, seed=1).voxelize(8)
     fft = homogenize_fft(image.astype(np.int8), [VOID, C_SOFT], discretization="hex8", tol=1e-11).C
@@ -199,8 +199,9 @@ def test_hex8_input_errors():
 @pytest.mark.parametrize("shape", [(15, 13, 11), (16, 12, 10)])
 def test_distributed_result_equals_serial(shape):
     """Under ``mpirun -n 2``: uneven slabs, void + two solids, full image and local slabs give the serial C."""
-    from homogenization.fft import slab_planes
     from test_fft import three_phase_image
+
+    from homogenization.fft import slab_planes
 
     comm = world()
     img = three_phase_image(shape)
