@@ -161,15 +161,16 @@ def test_c_is_symmetric_positive_definite_and_translation_invariant_with_a_void(
 
 
 def test_same_limit_as_the_rotated_scheme_on_a_smooth_inclusion():
-    """A stiff sphere (contrast 20): the two discretizations of the voxel image differ by O(h) and their gap
-    shrinks with N (measured 0.047, 0.027, 0.014 at N = 8, 16, 32 on C11, C44)."""
+    """A stiff sphere (contrast 20): the two discretizations of the voxel image approach each other as N grows
+    (largest relative gap of C11 … C44 columns measured 0.036, 0.024, 0.0094 at N = 8, 16, 32), hex8 above."""
     gaps = []
     for n in (8, 16, 32):
         img = sphere_image(n, 0.3)
         C = [homogenize_fft(img, [C_SOFT, isotropic_voigt(20.0, 0.3)], discretization=d, tol=1e-8,
                             macro_strains=np.eye(6)[[0, 3]]).C_raw[:, [0, 3]] for d in ("rotated", "hex8")]
         gaps.append(rel(C[1], C[0]))
-    assert gaps[2] < 0.7 * gaps[1] < 0.7**2 * gaps[0]
+        assert C[1][0, 0] > C[0][0, 0]  # full integration is stiffer
+    assert gaps[2] < 0.5 * gaps[1] and gaps[1] < 0.8 * gaps[0]
 
 
 @pytest.mark.slow
