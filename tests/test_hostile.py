@@ -171,6 +171,18 @@ ISO = 'material = "isotropic"\nE = 1e6\nnu = 0.3\nrho = 1000.0\n'
     (lambda s: s.replace(ISO, TI_BAD.replace("nu_tl = 0.9", "nu_tl = 0.3")).replace(
         "[loads]", '[orientation]\nkind = "callable"\nfunction = "math:pi"\n[loads]'),
      "orientation.function: 'math:pi' is a float, not a function"),
+    (lambda s: s.replace(ISO, TI_BAD.replace("nu_tl = 0.9", "nu_tl = 0.3")).replace(
+        "[loads]", '[orientation]\nkind = "callable"\nfunction = "sys:exit"\n[loads]'),
+     "orientation.function: sys:exit(x) raised SystemExit"),
+    (lambda s: s.replace(ISO, TI_BAD.replace("nu_tl = 0.9", "nu_tl = 0.3")).replace(
+        "[loads]", '[orientation]\nkind = "callable"\nfunction = "numpy.fft:fft"\n[loads]'),
+     "orientation.function: numpy.fft:fft(x) returned complex values"),
+    (lambda s: s.replace(ISO, FOAM.replace("density = 0.18", 'density = {function = "numpy.fft:fft"}')).replace(
+        "[loads]", '[orientation]\nkind = "uniform"\ndirection = [1.0, 0.0, 0.0]\n[loads]'),
+     "regions.beam.density: the function returned complex values"),
+    (lambda s: s.replace(ISO, FOAM.replace("density = 0.18", 'density = {function = "sys:exit"}')).replace(
+        "[loads]", '[orientation]\nkind = "uniform"\ndirection = [1.0, 0.0, 0.0]\n[loads]'),
+     "regions.beam.density: sys:exit(x) raised SystemExit"),
     (lambda s: s.replace("[loads]", '[fem.petsc]\nsnes_rtol = "abc"\n[loads]'),
      "fem.petsc.snes_rtol: PETSc refuses the value 'abc'"),
     (lambda s: s.replace("[loads]", "[fem.petsc]\nsnes_rtoll = 1e-8\n[loads]"),
@@ -191,6 +203,15 @@ def test_bad_scenes_exit_2_naming_the_key(work, capsys, edit, message):
     assert status == 2, err
     assert message in err and "Traceback" not in err
     assert snapshot(work) == before  # not even --out is created
+
+
+def test_sys_exit_inside_a_command_is_a_failure_not_a_success(capsys):
+    """A ``sys.exit(0)`` reached inside a command's work (e.g. from a user's function) must not end with status 0."""
+    from foambase import cli
+
+    command = cli.Command("quits", "calls sys.exit(0) in its work", lambda parser: None, lambda args: sys.exit(0))
+    status, err = status_of([lambda argv: cli.main_single(command, "quits", argv)], capsys)
+    assert status == 1 and "quits: error: the command did not finish: sys.exit(0) was called" in err
 
 
 def test_a_binary_scene_file_exits_2(work, capsys):

@@ -132,8 +132,32 @@ def _graded_record(region: Region, material, cells, comm) -> dict[str, Any]:
     return {"type": "graded " + type(material).__name__, "fit": region.parameters["fit"], **ranges}
 
 
-def _import_callable(spec: str) -> Callable[[np.ndarray], np.ndarray]:
-    """The user's ``module:function``; any exception it raises becomes a :class:`SceneError` naming it."""
+def _check_graded_range(cells, comm) -> None:
+    """Every graded cell's density and γ inside the foam table, counted over all ranks (collective).
+
+    :class:`InputError` with the total number of cells outside (a rank-local check would stop only the ranks
+    whose cells are outside, and count only theirs).
+    """
+    from fenicsfoam.grading import FoamTable
+
+    table = FoamTable()  # graded fields read the default table (_check_default_tables)
+    for name, foam in cells.foams.items():
+        for key, (lo, hi) in (("density", table.density_range), ("gamma", table.gamma_range)):
+            values = np.asarray(getattr(foam, key), dtype=float)
+            bad = ~(np.isfinite(values) & (values >= lo - 1e-12) & (values <= hi + 1e-12))
+            total = comm.allreduce(int(bad.sum()))
+            if total:
+                example = next(v for part in comm.allgather(values[bad][:1].tolist()) for v in part)
+                raise InputError(f"region {name!r}: {total} cell(s) have {key} outside the tabulated range "
+                                 f"[{lo:g}, {hi:g}] of the foam table (e.g. {example!r}; counted on all ranks)")
+
+
+def _import_callable(spec: str, comm=None) -> Callable[[np.ndarray], np.ndarray]:
+    """The user's ``module:function``; any exception it raises becomes a :class:`SceneError` naming it.
+
+    With ``comm``, a call fails on every rank when it fails on one (collective): the caller's next collective
+    call would otherwise wait forever for the failed rank.
+    """
     module, _, name = spec.partition(":")
     try:
         function = getattr(importlib.import_module(module), name)
@@ -142,12 +166,19 @@ def _import_callable(spec: str) -> Callable[[np.ndarray], np.ndarray]:
     if not callable(function):
         raise SceneError(f"orientation.function: {spec!r} is a {type(function).__name__}, not a function")
 
-    def directions(x: np.ndarray) -> np.ndarray:
+    def call(x: np.ndarray) -> np.ndarray:
         try:
-            return function(x)
-        except Exception as exc:
+            values = np.asarray(function(x))
+        except (Exception, SystemExit) as exc:  # a sys.exit in the user's function is a failure too
             raise SceneError(f"orientation.function: {spec}(x) raised {type(exc).__name__}: {exc}; it must map "
                              "an (n, 3) array of points (m) to an (n, 3) array of directions") from exc
+        if np.iscomplexobj(values):
+            raise SceneError(f"orientation.function: {spec}(x) returned complex values (e.g. "
+                             f"{values.ravel()[:1]}); it must return real directions")
+        return values
+
+    def directions(x: np.ndarray) -> np.ndarray:
+        return call(x) if comm is None else on_every_rank(comm, lambda: call(x), "orientation.function failed")
     return directions
 
 
@@ -174,7 +205,7 @@ ORIENTATIONS: dict[str, Callable] = {
     "per_tag": lambda mesh, cell_tags, spec: orient.per_tag(mesh, cell_tags, spec["directions"],
                                                             default=spec["default"]),
     "spiral": lambda mesh, cell_tags, spec: orient.from_callable(mesh, _spiral(spec)),
-    "callable": lambda mesh, cell_tags, spec: orient.from_callable(mesh, _import_callable(spec["function"])),
+    "callable": lambda mesh, cell_tags, spec: orient.from_callable(mesh, _import_callable(spec["function"], mesh.comm)),
 }
 
 
@@ -264,8 +295,11 @@ def load_steps(scene: Scene) -> list[LoadStep]:
 
 def build_model(scene: Scene, comm) -> Model:
     """Build the mesh, the problem and the probes of a validated scene (collective)."""
-    resolved = {region.name: resolve_material(region) for region in scene.regions}  # before meshing: fail fast
-    _check_orientation(scene, resolved)
+    def resolve():  # before meshing: fail fast; reads files and imports the user's module (may fail on one rank)
+        resolved = {region.name: resolve_material(region) for region in scene.regions}
+        _check_orientation(scene, resolved)
+        return resolved
+    resolved = on_every_rank(comm, resolve, "checking the scene's materials and orientation failed")
     tagged = _build_mesh(scene, comm)
     mesh, cell_tags = tagged.mesh, tagged.cell_tags
     extent = mesh_extent(mesh)
@@ -278,6 +312,7 @@ def build_model(scene: Scene, comm) -> Model:
         from fenicsfoam.grading import CellMaterials
         try:
             cells = CellMaterials.from_regions(mesh, cell_tags, scene.regions, materials=resolved, blends=scene.blends)
+            _check_graded_range(cells, comm)
             field = cells.material_field(mesh, materials)
         except InputError as exc:
             raise SceneError(f"regions: {exc}") from exc
