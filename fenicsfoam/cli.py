@@ -63,6 +63,8 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("scene", type=cli.nonempty_path, help="the scene file (TOML)")
     parser.add_argument("--out", type=cli.nonempty_path, required=True,
                         help="output directory: new, empty, or a previous run's folder (its files are replaced)")
+    parser.add_argument("--wait", action="store_true",
+                        help="if another run is writing into --out, wait for it to end (default: refuse)")
     parser.add_argument("--uncertainty", action="store_true",
                         help="also run once per seed of the foam table: every probe as value ± standard deviation "
                              "(summary.json: probes_std per step)")
@@ -90,14 +92,14 @@ def _run(args: argparse.Namespace) -> int:
     from foambase.petsc_options import command_line_options
 
     comm = MPI.COMM_WORLD
-    RunFolder(args.out, comm, what="--out").check()
+    RunFolder(args.out, comm, what="--out", wait=args.wait).check()
     with command_line_options(args.passthrough):
         if args.uncertainty:
             from fenicsfoam.uncertainty import run_with_uncertainty
 
             result = run_with_uncertainty(args.scene, args.out, samples_csv=args.samples, comm=comm)
         else:
-            result = run_scene(args.scene, args.out, comm=comm)
+            result = run_scene(args.scene, args.out, comm=comm, wait=args.wait)
     if comm.rank == 0:
         print(result.table())
         print(f"outputs in {args.out}")

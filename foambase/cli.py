@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 import traceback
 from collections.abc import Callable, Sequence
@@ -44,6 +45,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from foambase.errors import EXIT_FAILURE, EXIT_OK, FenicsfoamError, exit_code
+from foambase.files import UNCLOSABLE
 from foambase.logs import launcher_rank, setup_logging
 from foambase.mpi import abort, exited, failed_together
 from foambase.signals import interruptible
@@ -146,6 +148,23 @@ def dispatch(parser: argparse.ArgumentParser, argv: Sequence[str]) -> int:
         own_parser.error(f"unrecognized arguments after '--': {' '.join(passthrough)}")
     args.passthrough = passthrough
     setup_logging(args.verbose + getattr(args, "verbose_global", 0))
+    code = _dispatch(own_parser, command, args)
+    if UNCLOSABLE:  # a native file that failed to write: the exit-time clean-up of its library would crash
+        _exit_without_cleanup(code)
+    return code
+
+
+def _exit_without_cleanup(code: int) -> None:
+    """End the process now with ``code``: output flushed, no exit-time handlers of native libraries.
+
+    Not even ``MPI_Finalize``: parallel HDF5 closes its files from it and crashes on the one that failed.
+    """
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
+def _dispatch(own_parser: argparse.ArgumentParser, command: Command, args: argparse.Namespace) -> int:
     try:
         with interruptible():
             if command.check is not None:

@@ -2,7 +2,8 @@
 
 Every writer goes through :func:`atomic_path`: the content is written to a temporary file in the target's own
 directory (so that the final rename stays within one file system) and moved onto the target by ``os.replace``,
-which POSIX makes atomic. On an exception (or a SIGINT/SIGTERM, :mod:`foambase.signals`) the temporary file is
+which POSIX makes atomic. A system error while writing (disk full, file-size limit, quota) is raised as a
+:class:`~foambase.errors.WriteError` naming the target and the error. On an exception (or a SIGINT/SIGTERM, :mod:`foambase.signals`) the temporary file is
 removed and the target is left untouched. The temporary name (``.NAME.PID.TOKEN.tmp.SUFFIX``, :data:`TEMPORARY`)
 keeps the target's suffix, so writers that choose a format by the file name (PNG screenshots, STL, a compiler's
 output) work unchanged. Files are created with the usual permissions (``0o666`` less the umask).
@@ -15,6 +16,7 @@ path, a directory where a file is expected or the reverse, a missing or read-onl
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import re
@@ -23,14 +25,38 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import IO, Any
 
-from foambase.errors import InputError
+from foambase.errors import InputError, WriteError
 from foambase.signals import discard_temporary, register_temporary
 
-__all__ = ["TEMPORARY", "atomic_open", "atomic_path", "check_output_dir", "check_output_file", "write_json_atomic",
-           "write_text_atomic"]
+__all__ = ["TEMPORARY", "atomic_open", "atomic_path", "check_output_dir", "check_output_file", "keep_unclosable",
+           "write_error",
+           "write_json_atomic", "write_text_atomic"]
 
 #: The names of :func:`atomic_path`'s temporary files (left behind only by a process that was killed).
 TEMPORARY = re.compile(r"^\..*\.\d+\.[0-9a-f]{8}\.tmp(\.[^.]*)?$")
+
+
+#: Native file handles a failed write left open: never destroyed (:func:`keep_unclosable`).
+UNCLOSABLE: list = []
+
+
+def keep_unclosable(handle: Any) -> None:
+    """Keep a native file handle that failed to write (e.g. an HDF5 file) from ever being destroyed.
+
+    Its destructor would try to close the file again and abort the process; the handle is leaked instead, and
+    the command lines end such a process without the library's exit-time clean-up (:func:`foambase.cli.dispatch`).
+    """
+    import ctypes
+
+    ctypes.pythonapi.Py_IncRef(ctypes.py_object(handle))
+    UNCLOSABLE.append(handle)
+
+
+def write_error(path: str | os.PathLike, exc: OSError) -> WriteError:
+    """The :class:`~foambase.errors.WriteError` for ``path``: the file and the system's error (``strerror``, errno)."""
+    name = errno.errorcode.get(exc.errno, str(exc.errno)) if exc.errno is not None else type(exc).__name__
+    return WriteError(f"cannot write {path}: {exc.strerror or exc} ({name}); the file was not written (a previous "
+                      "version, if any, is kept)")
 
 
 @contextlib.contextmanager
@@ -43,9 +69,14 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     tmp = path.with_name(f".{path.stem}.{os.getpid()}.{secrets.token_hex(4)}.tmp{path.suffix}")
     register_temporary(tmp)
     try:
-        os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
-        yield tmp
-        os.replace(tmp, path)
+        try:
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+            yield tmp
+            os.replace(tmp, path)
+        except OSError as exc:
+            if exc.errno is None:
+                raise
+            raise write_error(path, exc) from exc
     finally:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)

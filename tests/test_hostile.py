@@ -558,3 +558,126 @@ def test_table_refuses_bad_arguments_naming_them(work, capsys, monkeypatch, argv
     status, err = status_of([fenicsfoam_main, "table", *argv], capsys)
     assert status == 2 and message in err, err
     assert snapshot(work) == before
+
+
+# --------------------------------------------------------------------------------------------------
+# One run per output folder: a lock, refused or waited for
+# --------------------------------------------------------------------------------------------------
+def hold_lock(out: Path) -> int:
+    """Lock ``out`` as a running ``fenicsfoam run`` does (flock on the directory); the descriptor to close."""
+    import fcntl
+
+    fd = os.open(out, os.O_RDONLY | os.O_DIRECTORY)
+    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    return fd
+
+
+def another_run_in(out: Path) -> dict[str, tuple]:
+    """``out`` as a run that is writing leaves it: an incomplete summary and its temporary XDMF folder."""
+    out.mkdir()
+    (out / "summary.json").write_text(json.dumps({"status": "incomplete", "scene": {}, "steps": [],
+                                                  "files": ["summary.json"]}))
+    (out / ".solution.running").mkdir()
+    (out / ".solution.running" / "solution.h5").write_text("the other run's data")
+    return snapshot(out)
+
+
+def test_a_second_run_into_a_locked_folder_is_refused_and_touches_nothing(work, capsys):
+    out = work / "out"
+    before = another_run_in(out)
+    (work / "scene.toml").write_text(scene_text())
+    fd = hold_lock(out)
+    try:
+        status, err = status_of([fenicsfoam_main, "run", str(work / "scene.toml"), "--out", str(out)], capsys)
+    finally:
+        os.close(fd)
+    assert status == 2 and f"--out {out}: another run is writing into this folder" in err, err
+    assert snapshot(out) == before  # the other run's temporary folder survives
+
+
+def test_a_run_with_wait_waits_for_the_lock_then_runs(work):
+    out = work / "out"
+    another_run_in(out)
+    (work / "scene.toml").write_text(scene_text(outputs="[outputs]\nxdmf = false\npng = false\n"))
+    fd = hold_lock(out)
+    process = spawn([*command("fenicsfoam"), "run", "scene.toml", "--out", "out", "--wait"], work)
+    try:
+        time.sleep(4.0)  # long enough to build the scene and reach the lock
+        assert process.poll() is None and (out / ".solution.running").exists()
+        assert json.loads((out / "summary.json").read_text())["status"] == "incomplete"
+        os.close(fd)
+        fd = None
+        _, err = process.communicate(timeout=TIMEOUT)
+    finally:
+        if fd is not None:
+            os.close(fd)
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.communicate()
+    assert process.returncode == 0, err
+    assert json.loads((out / "summary.json").read_text())["status"] == "complete"
+
+
+# --------------------------------------------------------------------------------------------------
+# Write faults: the file and the system's error named, status "failed", no half-written file
+# --------------------------------------------------------------------------------------------------
+LIMITED = """import resource, sys
+from mpi4py import MPI  # MPI starts before the limit (it writes its own session files)
+limit = int(sys.argv[1])
+resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+from fenicsfoam.cli import main
+sys.exit(main(sys.argv[2:]))
+"""
+
+
+@pytest.mark.parametrize("limit, victim, status", [
+    (20_000, "solution.h5", "failed"),
+    pytest.param(60_000, "first.png", "failed", marks=pytest.mark.slow),
+    pytest.param(1_000, "summary.json", None, marks=pytest.mark.slow),
+], ids=["hdf5", "png", "summary"])
+def test_a_write_fault_fails_the_run_naming_the_file_and_leaves_no_partial_file(work, limit, victim, status):
+    (work / "limited.py").write_text(LIMITED)
+    (work / "scene.toml").write_text(scene_text("first", "second"))
+    result = run([sys.executable, "limited.py", str(limit), "run", "scene.toml", "--out", "out"], work)
+    out = work / "out"
+    assert result.returncode == 1, result.stderr
+    assert f"fenicsfoam run: error: cannot write out/{victim}: " in result.stderr
+    assert "File too large (EFBIG)" in result.stderr and "Traceback" not in result.stderr
+    assert not (out / victim).exists() or victim == "summary.json"
+    assert not [p.name for p in out.iterdir() if p.name.startswith(".")]  # no temporaries
+    if status is not None:
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["status"] == status and f"cannot write out/{victim}" in summary["error"]
+        assert sorted(summary["files"]) == outputs_of(out)
+    else:
+        assert not (out / "summary.json").exists()
+
+
+@pytest.fixture
+def file_size_limit():
+    """Files this process writes may hold at most 64 bytes (restored afterwards); writes beyond fail with EFBIG."""
+    import resource
+
+    previous = resource.getrlimit(resource.RLIMIT_FSIZE)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (64, previous[1]))
+    yield
+    resource.setrlimit(resource.RLIMIT_FSIZE, previous)
+
+
+def test_an_atomic_write_that_fails_names_the_file_and_keeps_the_previous_version(tmp_path, file_size_limit):
+    from foambase.errors import WriteError
+    from foambase.files import write_json_atomic
+
+    target = tmp_path / "calibration.json"
+    write_json_atomic(target, {"E_solid": 1.0})
+    with pytest.raises(WriteError, match=rf"^cannot write {target}: File too large \(EFBIG\)"):
+        write_json_atomic(target, {"E_solid": 2.0, "notes": "x" * 200})
+    assert json.loads(target.read_text()) == {"E_solid": 1.0}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["calibration.json"]
+
+
+def test_homogenize_reports_a_write_fault_on_its_json(images, capsys, monkeypatch, file_size_limit):
+    monkeypatch.chdir(images)
+    status, err = status_of([homogenize_main, "--image", "porous.npy", "--out", "r.json"], capsys)
+    assert status == 1 and "cannot write r.json: File too large (EFBIG)" in err and "Traceback" not in err
+    assert not (images / "r.json").exists()

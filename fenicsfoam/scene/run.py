@@ -72,7 +72,7 @@ def _value(value: Any) -> float | list[float]:
 
 
 def run_scene(source: str | os.PathLike | Mapping[str, Any] | Scene, out_dir: str | os.PathLike | None = None, *,
-              comm=None) -> SceneResult:
+              comm=None, wait: bool = False) -> SceneResult:
     """Build a scene, run its load schedule, evaluate its probes after every step and write its outputs.
 
     Parameters
@@ -87,6 +87,9 @@ def run_scene(source: str | os.PathLike | Mapping[str, Any] | Scene, out_dir: st
         and pictures on rank 0 only.
     comm
         MPI communicator (default ``MPI.COMM_WORLD``).
+    wait
+        If another run is writing into ``out_dir`` (it holds the folder's lock), wait for it to end instead of
+        refusing (:class:`InputError`).
 
     Returns
     -------
@@ -110,7 +113,7 @@ def run_scene(source: str | os.PathLike | Mapping[str, Any] | Scene, out_dir: st
     comm = MPI.COMM_WORLD if comm is None else comm
     start = time.perf_counter()
     scene = source if isinstance(source, Scene) else load_scene(source)
-    folder = None if out_dir is None else RunFolder(out_dir, comm)
+    folder = None if out_dir is None else RunFolder(out_dir, comm, wait=wait)
     if folder is not None:
         folder.check()
     check_solver_options(scene)
@@ -122,11 +125,12 @@ def run_scene(source: str | os.PathLike | Mapping[str, Any] | Scene, out_dir: st
     if folder is not None:
         folder.start(result)
     out = None if folder is None else folder.path
-    series = XdmfSeries(comm, out, problem.V.mesh) if out is not None and scene.xdmf else None
-    solution = SolutionWriter(problem.V, out) if series is not None else None
+    series = solution = None
     pictures = scene.png if out is not None else ()
     failure, current = None, None
     try:
+        series = XdmfSeries(comm, out, problem.V.mesh) if out is not None and scene.xdmf else None
+        solution = SolutionWriter(problem.V, out) if series is not None else None
         bar = tqdm(model.steps, desc=f"scene {scene.name}", unit="step", disable=None if comm.rank == 0 else True)
         for index, step in enumerate(bar):
             current = step.label
