@@ -66,8 +66,11 @@ class ComputationError(FenicsfoamError, RuntimeError):
 
 
 class WriteError(ComputationError):
-    """An output file could not be written (disk full, file-size limit, quota…): names the file and the system's
-    error (exit status 1); the file is absent or its previous version, never half-written."""
+    """An output file could not be written (disk full, file-size limit, quota…) (exit status 1).
+
+    The message names the file and the system's error; the file is absent or its previous version, never
+    half-written.
+    """
 
 
 def exit_code(error: BaseException) -> int:
