@@ -6,7 +6,8 @@ which POSIX makes atomic. A system error while writing (disk full, file-size lim
 :class:`~foambase.errors.WriteError` naming the target and the error. On an exception (or a SIGINT/SIGTERM,
 :mod:`foambase.signals`) the temporary file is removed and the target is left untouched. The temporary name
 (``.NAME.PID.TOKEN.tmp.SUFFIX``, :data:`TEMPORARY`) keeps the target's suffix, so writers that choose a format by
-the file name (PNG screenshots, STL, a compiler's output) work unchanged. Files are created with the usual permissions (``0o666`` less the umask).
+the file name (PNG screenshots, STL, a compiler's output) work unchanged. Files are created with the usual
+permissions (``0o666`` less the umask).
 
 Outputs are checked before any work: :func:`check_output_file` and :func:`check_output_dir` raise an
 :class:`~foambase.errors.InputError` naming the argument when a file or directory cannot be written there (an empty
