@@ -183,6 +183,10 @@ ISO = 'material = "isotropic"\nE = 1e6\nnu = 0.3\nrho = 1000.0\n'
     (lambda s: s.replace(ISO, FOAM.replace("density = 0.18", 'density = {function = "sys:exit"}')).replace(
         "[loads]", '[orientation]\nkind = "uniform"\ndirection = [1.0, 0.0, 0.0]\n[loads]'),
      "regions.beam.density: sys:exit(x) raised SystemExit"),
+    (lambda s: s.replace("[loads]", '[fem.petsc]\nsnes_rtol = nan\n[loads]'),
+     "fem.petsc.snes_rtol: nan is not a finite number"),
+    (lambda s: s.replace("[loads]", '[fem.petsc]\nsnes_atol = -inf\n[loads]'),
+     "fem.petsc.snes_atol: -inf is not a finite number"),
     (lambda s: s.replace("[loads]", '[fem.petsc]\nsnes_rtol = "abc"\n[loads]'),
      "fem.petsc.snes_rtol: PETSc refuses the value 'abc'"),
     (lambda s: s.replace("[loads]", "[fem.petsc]\nsnes_rtoll = 1e-8\n[loads]"),
@@ -319,6 +323,26 @@ def test_a_used_setup_option_passes_and_unknown_command_line_options_warn(work, 
     assert "WARNING" in err and "-scene_snes_rtoll -snes_max_it" in err and "-scene_snes_rtol " not in err
     from petsc4py import PETSc
     assert not [k for k in PETSc.Options().getAll() if "snes" in k]  # the run's options are gone with it
+
+
+@pytest.mark.parametrize("options, message", [
+    (["-scene_snes_rtol", "nan"], "command-line option -scene_snes_rtol: 'nan' is not a finite number"),
+    (["-scene_snes_atol", "inf"], "command-line option -scene_snes_atol: 'inf' is not a finite number"),
+    (["scene_snes_rtol", "1e-8"], "PETSc options after '--': 'scene_snes_rtol' is not an option (options start "
+                                  "with '-') (did you mean -scene_snes_rtol?)"),
+    (["-scene_snes_rtol", "1e-8", "1e-9"], "PETSc options after '--': '1e-9' is not an option"),
+    (["-scene_ksp_type"], "command-line option -scene_ksp_type: PETSc refuses no value"),
+    (["-scene_ksp_type", "nosuchtype"], "command-line option -scene_ksp_type: PETSc refuses the value 'nosuchtype'"),
+])
+def test_bad_command_line_petsc_options_exit_2_naming_them(work, capsys, options, message):
+    (work / "scene.toml").write_text(scene_text())
+    before = snapshot(work)
+    status, err = status_of([fenicsfoam_main, "run", str(work / "scene.toml"), "--out", str(work / "out"), "--",
+                             *options], capsys)
+    assert status == 2 and message in err and "Traceback" not in err, err
+    assert snapshot(work) == before
+    from petsc4py import PETSc
+    assert not [k for k in PETSc.Options().getAll() if k.startswith("scene_")]
 
 
 # --------------------------------------------------------------------------------------------------
