@@ -37,8 +37,8 @@ from foambase.errors import InputError
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["check_options", "check_tokens", "command_line_options", "deferred", "error_message", "option_names", "option_used",
-           "unused_command_line_options"]
+__all__ = ["check_options", "check_tokens", "command_line_options", "deferred", "error_message", "option_names",
+           "option_used", "unused_command_line_options"]
 
 #: Options read only when a solver is set up or a solve ends (see the module docstring).
 DEFERRED = re.compile(r"^(mat_mumps_|mat_superlu|mat_strumpack|mat_mkl_|mat_pastix_|mat_cholmod_|mat_umfpack_|"

@@ -130,6 +130,34 @@ def test_unsafe_step_labels_are_refused_naming_the_key(labels, index, message):
         parse_scene(scene)
 
 
+def _beam(**extra):
+    return {"geometry": {"builder": "beam"}, "regions": {"beam": {"tags": "beam", "material": "isotropic",
+                                                                  "E": 1e6, "nu": 0.3}},
+            "loads": {"clamp": "clamped"}, "steps": [{"label": "a"}], **extra}
+
+
+def _ti_beam(orientation):
+    scene = _beam(orientation=orientation)
+    scene["regions"]["beam"] = {"tags": "beam", "material": "transverse_isotropic", "E_t": 1e6, "E_l": 2e6,
+                                "nu_t": 0.3, "nu_tl": 0.3, "G_l": 3e5}
+    return scene
+
+
+@pytest.mark.parametrize("scene, message", [
+    (lambda: _beam(loads={"clamp": "clamped", "force": {"clamp": {"group": "tip", "force": [0, 0, -1.0]}}}),
+     r"^loads\.force\.clamp: the name 'clamp' is reserved"),
+    (lambda: _beam(loads={"clamp": "clamped", "pressure": {"servo1": {"group": "tip", "pressure": 1.0}}}),
+     r"^loads\.pressure\.servo1: the name 'servo1' is reserved"),
+    (lambda: _ti_beam({"kind": "per_tag", "directions": {"beam": [1.0, 0, 0]}, "default": [0, 0, 0]}),
+     r"^orientation\.default: every cell tag of the mesh \(\[1\]\) has a direction"),
+    (lambda: _ti_beam({"kind": "per_tag", "directions": {"\u00b2": [1.0, 0, 0]}}),
+     r"^orientation\.directions\.\u00b2: unknown region name '\u00b2'"),
+])
+def test_reserved_names_unused_defaults_and_odd_tags_are_refused(scene, message):
+    with pytest.raises(SceneError, match=message):
+        parse_scene(scene())
+
+
 def test_safe_labels_are_accepted():
     scene = {"geometry": {"builder": "beam"}, "regions": {"beam": {"tags": "beam", "material": "isotropic",
                                                                    "E": 1e6, "nu": 0.3}},

@@ -241,7 +241,7 @@ class LoadKind:
     named: bool = False                                    #: a table of named loads, moved by the steps
 
 
-#: Motion names the scene uses itself (a ``[loads.motion.NAME]`` may not take them).
+#: Motion names the scene uses itself (no named load or motion ``[loads.KIND.NAME]`` may take them).
 RESERVED_MOTIONS = ("clamp", "servo0", "servo1", "servo2")
 
 
@@ -291,6 +291,10 @@ def _named_tables(loads: _Table, key: str, read_one: Callable[[_Table, str], dic
     table = loads.table(key)
     if table is None:
         return {}
+    for name in table.data:  # the scene's own motions are named so too: the steps could not tell them apart
+        if name in RESERVED_MOTIONS:
+            raise SceneError(f"{table.path}.{name}: the name {name!r} is reserved ({', '.join(RESERVED_MOTIONS)}); "
+                             "choose another name")
     named = {name: read_one(table.table(name), name) for name in list(table.data)}
     table.done()
     return named

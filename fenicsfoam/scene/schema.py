@@ -277,7 +277,7 @@ def _read_field(table: _Table, key: str, tags: tuple[int, ...], named: Mapping[s
     spec.done()
     values: dict[int, float] = {}
     for name in per_tag.data:
-        keys = _tags(int(name) if name.lstrip("-").isdigit() else name, per_tag.key(name), named, "region")
+        keys = _tags(_tag_key(name), per_tag.key(name), named, "region")
         value = per_tag.number(name, required=True, **checks)
         for tag in keys:
             if tag not in tags:
@@ -333,6 +333,11 @@ def _read_regions(scene: _Table, mesh: MeshInfo, base: Path | None = None) -> tu
     return regions
 
 
+def _tag_key(key: str) -> int | str:
+    """A per-tag table's key: an integer cell tag if it is written in ASCII digits, else a region name."""
+    return int(key) if re.fullmatch(r"-?[0-9]+", key) else key
+
+
 def _read_orientation(scene: _Table, mesh: MeshInfo) -> dict[str, Any] | None:
     """``[orientation]`` (optional): the kind and its parameters."""
     table = scene.table("orientation")
@@ -346,11 +351,14 @@ def _read_orientation(scene: _Table, mesh: MeshInfo) -> dict[str, Any] | None:
         directions = table.table("directions", required=True)
         spec["directions"] = {}
         for key in directions.data:
-            tags = _tags(int(key) if key.lstrip("-").isdigit() else key, directions.key(key), mesh.regions, "region")
+            tags = _tags(_tag_key(key), directions.key(key), mesh.regions, "region")
             d = directions.vector(key, 3, required=True)
             spec["directions"].update(dict.fromkeys(tags, d))
         directions.done()
         spec["default"] = table.vector("default", 3)
+        if spec["default"] is not None and mesh.cell_tags and set(mesh.cell_tags) <= set(spec["directions"]):
+            raise SceneError(f"{table.key('default')}: every cell tag of the mesh ({sorted(mesh.cell_tags)}) has a "
+                             "direction, so the default would never be used; remove it")
     elif kind == "spiral":
         spec["pitch_deg"] = table.number("pitch_deg", required=True, check=lambda v: 0 <= v <= 90,
                                          valid="an angle in [0, 90] degrees (0: circles, 90: radial)")
