@@ -426,6 +426,12 @@ def _table_check(parser: argparse.ArgumentParser, args: argparse.Namespace) -> N
         parser.error(f"--gammas must lie in (0, 1], got {bad}")
     if any(s < 0 for s in args.seeds):
         parser.error(f"--seeds must be >= 0, got {args.seeds}")
+    for option in ("--densities", "--gammas", "--seeds"):
+        values = getattr(args, option[2:])
+        repeated = sorted({v for v in values if values.count(v) > 1})
+        if repeated:
+            parser.error(f"{option}: {', '.join(map(str, repeated))} given more than once (a sample would count "
+                         "twice in the mean and standard deviation over seeds); give each value once")
     if args.threads is not None and args.threads < 1:
         parser.error(f"--threads must be >= 1, got {args.threads}")
     for option, key in (("--cells", "n_cells"), ("--resolution", "resolution"), ("--tol", "tol")):

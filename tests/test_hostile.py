@@ -603,6 +603,8 @@ def test_homogenize_writes_the_foam_surface(images, monkeypatch):
     (["--out", "t", "--cells", "1"], "--cells: n_cells must be an integer >= 2, got 1"),
     (["--out", "t", "--resolution", "4"], "--resolution: resolution must be an integer >= 8 (cubic voxels"),
     (["--out", "t", "--densities", "nan"], "--densities must lie in (0, 1)"),
+    (["--out", "t", "--densities", "0.25", "0.25", "--seeds", "0"], "--densities: 0.25 given more than once"),
+    (["--out", "t", "--seeds", "0", "1", "0"], "--seeds: 0 given more than once"),
 ])
 def test_table_refuses_bad_arguments_naming_them(work, capsys, monkeypatch, argv, message):
     monkeypatch.chdir(work)
@@ -733,3 +735,73 @@ def test_homogenize_reports_a_write_fault_on_its_json(images, capsys, monkeypatc
     status, err = status_of([homogenize_main, "--image", "porous.npy", "--out", "r.json"], capsys)
     assert status == 1 and "cannot write r.json: File too large (EFBIG)" in err and "Traceback" not in err
     assert not (images / "r.json").exists()
+
+
+def test_a_grid_counts_a_repeated_value_once():
+    from homogenization import tables
+
+    assert tables.grid((0.25, 0.25), (1.0,), (0, 0)) == [tables.Sample(0.25, 1.0, 0)]
+
+
+@pytest.fixture
+def cached_row(tmp_path):
+    """A cache entry as the sweep writes one, for a sample whose C is a (slightly anisotropic) known stiffness."""
+    from homogenization import tables
+    from homogenization.tensors import (
+        closest_isotropic,
+        closest_transverse_isotropic,
+        engineering_constants,
+        isotropic_voigt,
+    )
+
+    settings = tables.SweepSettings(n_cells=3, resolution=16, tol=1e-5)
+    sample = tables.Sample(0.3, 1.0, 1)
+    C = isotropic_voigt(0.02, 0.3)
+    C[0, 0] *= 1.1
+    row = {"density": sample.density, "gamma": sample.gamma, "seed": sample.seed, "distance": settings.distance,
+           "box": settings.box, "n_cells": settings.n_cells, "resolution": settings.resolution, "tol": settings.tol,
+           "measured_density": 0.3, "radius": 0.05, **engineering_constants(C)}
+    row.update({name: float(C[int(name[1]) - 1, int(name[2]) - 1]) for name in tables.C_ENTRIES})
+    ti = closest_transverse_isotropic(C, axis=(1.0, 0.0, 0.0))
+    row.update(ti_E_t=ti.E_t, ti_E_l=ti.E_l, ti_nu_t=ti.nu_t, ti_nu_tl=ti.nu_tl, ti_G_l=ti.G_l, ti_error=ti.error)
+    iso = closest_isotropic(C)
+    row.update(iso_E=iso.E, iso_nu=iso.nu, iso_error=iso.error, iterations=10, wall_s=1.0, version="test")
+    entry = tmp_path / tables.cache_name(sample, settings)
+    entry.write_text(json.dumps(row))
+    return entry, sample, settings
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda row: row.update(E1=2 * row["E1"]), "column 'E1' = .* is not the value of its C"),
+    (lambda row: row.update(E1=float("nan")), "column 'E1' is nan, not a finite number"),
+    (lambda row: row.update(E1="abc"), "column 'E1' is 'abc', not a finite number"),
+    (lambda row: row.update(C11=-row["C11"]), "its C is not positive definite"),
+])
+def test_a_hand_edited_cache_entry_is_named_and_not_used(cached_row, tmp_path, caplog, edit, message):
+    import logging
+    import re
+
+    from homogenization import tables
+
+    entry, sample, settings = cached_row
+    row = json.loads(entry.read_text())
+    assert tables.read_cache_entry(entry, sample, settings) == row  # the entry as the sweep wrote it is used
+    edit(row)
+    edited = tmp_path / entry.name
+    edited.write_text(json.dumps(row))
+    with caplog.at_level(logging.WARNING, logger="homogenization.tables"):
+        assert tables.read_cache_entry(edited, sample, settings) is None
+    assert re.search(message, caplog.text) and "recomputed" in caplog.text, caplog.text
+
+
+def test_homogenize_fft_refuses_a_singular_stiffness_in_the_api():
+    """Isolated solid blocks in void: the homogenized C is singular; the API raises as the command line does."""
+    from foambase.errors import ComputationError
+    from homogenization.fft import homogenize_fft
+    from homogenization.tensors import isotropic_voigt
+
+    image = np.zeros((8, 8, 8), dtype=np.int8)
+    image[2:6, 2:6, 2:6] = 1
+    with pytest.raises(ComputationError, match=r"^the homogenized stiffness is not positive definite \(C is not "
+                                               r"positive definite: smallest Mandel eigenvalue"):
+        homogenize_fft(image, [np.zeros((6, 6)), isotropic_voigt(1.0, 0.3)], tol=1e-2)
