@@ -75,8 +75,15 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
 def _run_check(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     if args.samples is not None and not args.uncertainty:
         parser.error("--samples is used only with --uncertainty")
-    if args.samples is not None and not args.samples.is_file():
+    if args.samples is not None and not args.samples.exists():
         parser.error(f"--samples: file {str(args.samples)!r} does not exist")
+    if args.samples is not None:
+        from foambase.errors import InputError
+        from foambase.files import check_input_file
+        try:
+            check_input_file(args.samples, "--samples")
+        except InputError as exc:
+            parser.error(str(exc))
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -211,6 +211,13 @@ ISO = 'material = "isotropic"\nE = 1e6\nnu = 0.3\nrho = 1000.0\n'
     (lambda s: s.replace(ISO, FOAM.replace("density = 0.18", 'density = {function = "sys:exit"}')).replace(
         "[loads]", '[orientation]\nkind = "uniform"\ndirection = [1.0, 0.0, 0.0]\n[loads]'),
      "regions.beam.density: sys:exit(x) raised SystemExit"),
+    (lambda s: s.replace("increments = 1", "increments = 9223372036854775807"),
+     "steps[0].increments: 9223372036854775807 is out of range; valid: an integer <= 10000"),
+    (lambda s: s.replace('name = "hostile"', f'name = "{"n" * 10000}"'),
+     "name: expected a printable name of at most 200 characters"),
+    (lambda s: s.replace(ISO, FOAM.replace("E_solid = 1e6", 'E_solid = {calibration = "/dev/zero"}')).replace(
+        "[loads]", '[orientation]\nkind = "uniform"\ndirection = [1.0, 0.0, 0.0]\n[loads]'),
+     "regions.beam.E_solid.calibration: calibration file /dev/zero: is a character device"),
     (lambda s: s.replace("[loads]", '[fem.petsc]\nsnes_rtol = nan\n[loads]'),
      "fem.petsc.snes_rtol: nan is not a finite number"),
     (lambda s: s.replace("[loads]", '[fem.petsc]\nsnes_atol = -inf\n[loads]'),
@@ -244,6 +251,33 @@ def test_sys_exit_inside_a_command_is_a_failure_not_a_success(capsys):
     command = cli.Command("quits", "calls sys.exit(0) in its work", lambda parser: None, lambda args: sys.exit(0))
     status, err = status_of([lambda argv: cli.main_single(command, "quits", argv)], capsys)
     assert status == 1 and "quits: error: the command did not finish: sys.exit(0) was called" in err
+
+
+@pytest.mark.parametrize("kind, message", [
+    ("fifo", "is a named pipe (FIFO), not a regular file"),
+    ("/dev/zero", "is a character device (such as /dev/zero), not a regular file"),
+    ("directory", "is a directory, not a file"),
+    ("missing", "does not exist"),
+])
+def test_a_scene_that_is_not_a_regular_file_is_named_as_what_it_is(work, capsys, kind, message):
+    """Only os.stat is called: a FIFO would block a reader forever, /dev/zero would fill the memory."""
+    scene = {"fifo": work / "scene.toml", "/dev/zero": Path("/dev/zero"), "directory": work / "scenes",
+             "missing": work / "missing.toml"}[kind]
+    if kind == "fifo":
+        os.mkfifo(scene)
+    elif kind == "directory":
+        scene.mkdir()
+    status, err = status_of([fenicsfoam_main, "run", str(scene), "--out", str(work / "out")], capsys)
+    assert status == 2 and f"error: scene {scene}: {message}" in err, err
+
+
+def test_an_output_name_longer_than_the_file_system_allows_is_refused_first(work, capsys):
+    (work / "scene.toml").write_text(scene_text())
+    before = snapshot(work)
+    status, err = status_of([fenicsfoam_main, "run", str(work / "scene.toml"), "--out", str(work / ("o" * 300))],
+                            capsys)
+    assert status == 2 and "has 300 bytes, more than the 255 a file name may have here" in err, err
+    assert snapshot(work) == before
 
 
 def test_a_binary_scene_file_exits_2(work, capsys):
@@ -504,6 +538,10 @@ def images(work):
     x = (np.arange(8) + 0.5) / 8 - 0.5
     X, Y, Z = np.meshgrid(x, x, x, indexing="ij")
     np.save(work / "porous.npy", ~((X**2 + Y**2 + Z**2 < 0.3**2) | (Y**2 + Z**2 < 0.15**2)))
+    header = (work / "void.npy").read_bytes().replace(b"(8, 8, 8)", b"(4096, 4096, 4096)")
+    (work / "huge.npy").write_bytes(header)  # a header announcing 4096³ voxels over 512 bytes of data
+    os.mkfifo(work / "fifo.npy")
+    (work / "folder.npy").mkdir()
     return work
 
 
@@ -525,6 +563,15 @@ FOAM_ARGS = ["--density", "0.3", "--cells", "8", "--resolution", "16", "--thread
                                           "subnormal number"),
     ([*FOAM_ARGS, "--E-solid", "inf"], "--E-solid must be > 0 and finite, got inf"),
     (["--image", "archive.npz"], "--image archive.npz: an .npz archive, not an .npy array"),
+    (["--image", "huge.npy"], "--image huge.npy: its header announces an array of shape (4096, 4096, 4096)"),
+    (["--image", "fifo.npy"], "--image fifo.npy: is a named pipe (FIFO), not a regular file"),
+    (["--image", "folder.npy"], "--image folder.npy: is a directory, not a file"),
+    (["--image", "/dev/zero"], "--image /dev/zero: is a character device"),
+    (["--image", "missing.npy"], "--image missing.npy: no such file"),
+    ([*FOAM_ARGS, "--resolution", "100000"], "--resolution 100000: 1e+15 voxels need at least"),
+    ([*FOAM_ARGS, "--cells", "100000000"], "--cells 100000000 --resolution 16: 100000000 Voronoi cells in 16³ "
+                                           "voxels leave less than 2 voxels across a cell; valid at this "
+                                           "resolution: at most 512 cells"),
     (["--image", "empty.npy"], "--image empty.npy: expected a non-empty 3-D array"),
     (["--image", "void.npy"], "--image void.npy: every voxel is void"),
     (["--image", "victim.txt"], "--image victim.txt: cannot read a .npy array"),
@@ -605,6 +652,8 @@ def test_homogenize_writes_the_foam_surface(images, monkeypatch):
     (["--out", "t", "--densities", "nan"], "--densities must lie in (0, 1)"),
     (["--out", "t", "--densities", "0.25", "0.25", "--seeds", "0"], "--densities: 0.25 given more than once"),
     (["--out", "t", "--seeds", "0", "1", "0"], "--seeds: 0 given more than once"),
+    (["--out", "t", "--resolution", "100000"], "--resolution 100000: 1e+15 voxels need at least"),
+    (["--out", "t", "--cells", "100000000"], "--cells 100000000 --resolution 48: 100000000 Voronoi cells"),
 ])
 def test_table_refuses_bad_arguments_naming_them(work, capsys, monkeypatch, argv, message):
     monkeypatch.chdir(work)

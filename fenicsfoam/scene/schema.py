@@ -23,6 +23,8 @@ from fenicsfoam.materials import FOAM_FITS
 from fenicsfoam.orientation import HANDEDNESS
 from fenicsfoam.scene.kinds import GROUP_PROBE_KINDS, LOAD_KINDS, PROBE_KINDS, MeshInfo
 from fenicsfoam.scene.table import SceneError, _Table, _tags, _type_name, _vector
+from foambase.errors import InputError
+from foambase.files import check_input_file
 
 __all__ = ["LABEL_PATTERN", "RESERVED_NAMES", "Region", "Scene", "Step", "load_scene", "parse_scene"]
 
@@ -54,6 +56,12 @@ PETSC_PREFIX = "scene_"
 LABEL_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 #: Names of a run's fixed outputs (``summary.json``, ``probes.csv``, ``solution.xdmf``, ``orientation.png``): no
 #: step label may take one (compared without case, as case-insensitive file systems do).
+#: The longest scene ``name`` (it titles pictures and the progress bar).
+MAX_NAME = 200
+#: The largest scene file read (a scene is a page of text; anything larger is not one).
+MAX_SCENE_BYTES = 16 << 20
+#: The most load increments a step may ask for (each is at least one Newton solve; more is a typo, not a plan).
+MAX_INCREMENTS = 10_000
 RESERVED_NAMES = ("summary", "probes", "solution", "orientation")
 
 
@@ -158,8 +166,10 @@ def _read_mesh_file(geometry: _Table, base: Path | None) -> MeshInfo:
     geometry.done()
     if not path.is_absolute() and base is not None:
         path = base / path
-    if not path.is_file():
-        raise SceneError(f"geometry.path: mesh file {str(path)!r} does not exist")
+    try:
+        check_input_file(path, "geometry.path: mesh file")
+    except InputError as exc:
+        raise SceneError(str(exc)) from exc
     try:
         groups = physical_groups(path)
     except ValueError as exc:
@@ -492,7 +502,7 @@ def _read_step(table: _Table, loads: Mapping[str, Any]) -> Step:
             servo = (float(servo),) * 3
         else:
             servo = _vector(servo, 3, table.key("servo_deg"))
-    increments = table.integer("increments", default=1, minimum=1)
+    increments = table.integer("increments", default=1, minimum=1, maximum=MAX_INCREMENTS)
     factors = _read_step_loads(table, loads)
     motions = _read_step_motions(table, loads)
     table.done()
@@ -574,6 +584,9 @@ def parse_scene(data: Mapping[str, Any], base: str | os.PathLike | None = None) 
     """
     scene = _Table(dict(data), "")
     name = scene.string("name", default="scene")
+    if len(name) > MAX_NAME or not name.isprintable():
+        raise SceneError(f"name: expected a printable name of at most {MAX_NAME} characters (it titles the pictures "
+                         f"and the progress bar), got {len(name)} characters starting {name[:40]!r}")
     scene.string("description", default="")
     base = None if base is None else Path(base)
     mesh = _read_geometry(scene, base)
@@ -597,6 +610,10 @@ def load_scene(source: str | os.PathLike | Mapping[str, Any]) -> Scene:
     if isinstance(source, Mapping):
         return parse_scene(source)
     path = Path(source)
+    try:
+        check_input_file(path, "scene", max_bytes=MAX_SCENE_BYTES)  # a FIFO or /dev/zero is never opened
+    except InputError as exc:
+        raise SceneError(str(exc)) from exc
     try:
         with path.open("rb") as f:
             data = tomllib.load(f)

@@ -59,8 +59,8 @@ class _Table:
             raise SceneError(f"{self.key(key)}: {value!r} is out of range; valid: {valid}")
         return float(value)
 
-    def integer(self, key: str, *, default: int, choices: Sequence[int] | None = None, minimum: int | None = None
-                ) -> int:
+    def integer(self, key: str, *, default: int, choices: Sequence[int] | None = None, minimum: int | None = None,
+                maximum: int | None = None) -> int:
         value = self.raw(key, default)
         if isinstance(value, bool) or not isinstance(value, int):
             raise SceneError(f"{self.key(key)}: expected an integer, got {_type_name(value)} {value!r}")
@@ -68,6 +68,8 @@ class _Table:
             raise SceneError(f"{self.key(key)}: {value!r} is not valid; valid: {', '.join(map(str, choices))}")
         if minimum is not None and value < minimum:
             raise SceneError(f"{self.key(key)}: {value!r} is out of range; valid: an integer >= {minimum}")
+        if maximum is not None and value > maximum:
+            raise SceneError(f"{self.key(key)}: {value!r} is out of range; valid: an integer <= {maximum}")
         return value
 
     def string(self, key: str, *, required: bool = False, default: str | None = None,
