@@ -339,8 +339,11 @@ class XdmfSeries:
     def __init__(self, comm, out_dir: Path, mesh):
         from dolfinx.io import XDMFFile
         self._comm, self._out = comm, out_dir
-        tmp = comm.bcast(tempfile.mkdtemp(dir=out_dir, prefix=_XDMF_TEMPORARY) if comm.rank == 0 else None, root=0)
-        self._tmp = Path(tmp)
+        tmp = None
+        if comm.rank == 0:
+            tmp = tempfile.mkdtemp(dir=out_dir, prefix=_XDMF_TEMPORARY)
+            register_temporary(tmp)  # at once: a signal during the broadcast below must not leave it behind
+        self._tmp = Path(comm.bcast(tmp, root=0))
         register_temporary(self._tmp)  # removed on every rank if a signal arrives
         self._file = XDMFFile(comm, str(self._tmp / "solution.xdmf"), "w")
         self._guarded(lambda: self._file.write_mesh(mesh))
