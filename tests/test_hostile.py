@@ -158,6 +158,33 @@ def test_reserved_names_unused_defaults_and_odd_tags_are_refused(scene, message)
         parse_scene(scene())
 
 
+@pytest.mark.parametrize("edit, message", [
+    (lambda s: s["steps"][0].update(lable=s["steps"][0].pop("label")),
+     r"^steps\[0\]\.lable: unknown key; did you mean 'label'\? \(steps\[0\]\.label is required\)"),
+    (lambda s: s["regions"]["beam"].update(e=s["regions"]["beam"].pop("E")),
+     r"^regions\.beam\.e: unknown key; did you mean 'E'\?"),
+    (lambda s: s["geometry"].update(heigth=0.01),
+     r"^geometry\.heigth: unknown key; did you mean 'height'\? valid keys here"),
+    (lambda s: s["regions"]["beam"].update(material="foam", density=0.2, gama=1.0, E_solid=1e6, nu_solid=0.3,
+                                           E=None) or s["regions"]["beam"].pop("E") and None,
+     r"^regions\.beam\.gama: unknown key; did you mean 'gamma'\?"),
+])
+def test_a_misspelt_key_is_named_with_a_suggestion(edit, message):
+    scene = _beam()
+    scene["regions"]["beam"]["nu"] = 0.3
+    edit(scene)
+    with pytest.raises(SceneError, match=message):
+        parse_scene(scene)
+
+
+def test_a_key_of_the_schema_is_never_taken_for_a_misspelling():
+    """nu_tl is a key of its own: a transversely isotropic region without nu_t is told nu_t is missing."""
+    scene = _ti_beam({"kind": "uniform", "direction": [1.0, 0.0, 0.0]})
+    del scene["regions"]["beam"]["nu_t"]
+    with pytest.raises(SceneError, match=r"^regions\.beam\.nu_t: missing value \(required\)"):
+        parse_scene(scene)
+
+
 def test_safe_labels_are_accepted():
     scene = {"geometry": {"builder": "beam"}, "regions": {"beam": {"tags": "beam", "material": "isotropic",
                                                                    "E": 1e6, "nu": 0.3}},

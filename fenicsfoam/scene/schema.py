@@ -29,7 +29,7 @@ from fenicsfoam.scene.kinds import (
     MeshInfo,
     tripod_flat_servos,
 )
-from fenicsfoam.scene.table import SceneError, _Table, _tags, _type_name, _vector
+from fenicsfoam.scene.table import KNOWN_KEYS, SceneError, _Table, _tags, _type_name, _vector
 from foambase.errors import InputError
 from foambase.files import check_input_file
 
@@ -39,6 +39,7 @@ __all__ = ["LABEL_PATTERN", "RESERVED_NAMES", "Region", "Scene", "Step", "load_s
 MATERIAL_KEYS: dict[str, dict[str, tuple[bool, float | None]]] = {
     name: {k.name: (k.required, k.default) for k in kind.keys if k.form in ("number", "field", "modulus")}
     for name, kind in MATERIAL_KINDS.items()}
+KNOWN_KEYS.update(k.name for kind in MATERIAL_KINDS.values() for k in kind.keys)  # never taken for typos
 #: Range checks of the material constants (the material classes check admissibility again).
 MATERIAL_CHECKS: dict[str, dict[str, Any]] = {k.name: {"check": k.check, "valid": k.valid}
                                               for kind in MATERIAL_KINDS.values() for k in kind.keys if k.check}
