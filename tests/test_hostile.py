@@ -885,3 +885,30 @@ def test_homogenize_fft_refuses_a_singular_stiffness_in_the_api():
     with pytest.raises(ComputationError, match=r"^the homogenized stiffness is not positive definite \(C is not "
                                                r"positive definite: smallest Mandel eigenvalue"):
         homogenize_fft(image, [np.zeros((6, 6)), isotropic_voigt(1.0, 0.3)], tol=1e-2)
+
+
+def test_a_mesh_in_millimetres_is_refused_naming_metres_not_a_material_instability():
+    from fenicsfoam.scene import run_scene
+
+    scene = {"name": "mm", "geometry": {"builder": "finger", "h": 3.0, "length": 120.0, "width": 20.0,
+                                        "height": 6.0, "chamber": False},
+             "fem": {"model": "linear", "degree": 1},
+             "regions": {"finger": {"tags": "finger", "material": "isotropic", "E": 1e6, "nu": 0.3, "rho": 1000.0}},
+             "loads": {"gravity": [0.0, 0.0, -9.81], "clamp": "base"}, "steps": [{"label": "g"}]}
+    with pytest.raises(SceneError, match=r"^geometry: the mesh is 120 m across, more than the 10 m a robot may be: "
+                                         r"fenicsfoam works in metres .* scaled by 0\.001"):
+        run_scene(parse_scene(scene))
+
+
+@pytest.mark.parametrize("scene, message", [
+    (lambda: _beam(loads={"clamp": "clamped", "pressure": {"p": {"group": "beam", "pressure": 1.0}}}),
+     r"^loads\.pressure\.p\.group: 'beam' is a volume group \(a cell region\) of the mesh, and this load acts on "
+     r"a surface: give a facet group \(clamped, tip\)"),
+    (lambda: _ti_beam({"kind": "uniform", "direction": [0.0, 0.0, 0.0]}),
+     r"^orientation\.direction: a direction must be a non-zero vector, got \[0\.0, 0\.0, 0\.0\]"),
+    (lambda: _ti_beam({"kind": "per_tag", "directions": {"beam": [0, 0, 0]}}),
+     r"^orientation\.directions\.beam: a direction must be a non-zero vector"),
+])
+def test_a_volume_group_for_a_pressure_and_a_zero_direction_are_named(scene, message):
+    with pytest.raises(SceneError, match=message):
+        parse_scene(scene())

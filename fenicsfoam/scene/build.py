@@ -31,7 +31,7 @@ import numpy as np
 from fenicsfoam import orientation as orient
 from fenicsfoam.constitutive import MaterialField
 from fenicsfoam.material import MATERIAL_KINDS, Isotropic, tabulated_regions
-from fenicsfoam.meshcheck import check_degree, check_units, mesh_extent
+from fenicsfoam.meshcheck import UNITS_RANGE, check_degree, check_units, mesh_extent
 from fenicsfoam.scene.kinds import GEOMETRY_KINDS, GROUP_PROBE_KINDS, LOAD_KINDS, PROBE_KINDS, BuildContext
 from fenicsfoam.scene.schema import PETSC_PREFIX, Region, Scene
 from fenicsfoam.scene.table import SceneError, key_error
@@ -253,6 +253,10 @@ def build_model(scene: Scene, comm, before_problem: Callable[[Any], Mapping[str,
     tagged = _build_mesh(scene, comm)
     mesh, cell_tags = tagged.mesh, tagged.cell_tags
     extent = mesh_extent(mesh)
+    if extent.size > UNITS_RANGE[1]:  # millimetres: refused here, not left to fail as a "material instability"
+        raise SceneError(f"geometry: the mesh is {extent.size:.4g} m across, more than the {UNITS_RANGE[1]:g} m a "
+                         "robot may be: fenicsfoam works in metres (SI units); a mesh drawn in millimetres must be "
+                         "scaled by 0.001 (gmsh: Mesh.ScalingFactor = 0.001 before writing the .msh file)")
     check_units(mesh, extent)
     check_degree(mesh, scene.degree, extent)
     materials = {tag: resolved[region.name] for region in scene.regions for tag in region.tags}

@@ -132,6 +132,9 @@ def _group(value: Any, path: str, mesh: MeshInfo, facets_only: bool = False) -> 
             return Group(value, tuple(mesh.facets[value]), False)
         if value in mesh.regions and not facets_only:
             return Group(value, tuple(mesh.regions[value]), True)
+        if value in mesh.regions:  # a volume where a surface is needed
+            raise SceneError(f"{path}: {value!r} is a volume group (a cell region) of the mesh, and this load acts "
+                             f"on a surface: give a facet group ({', '.join(sorted(mesh.facets)) or 'none'})")
         names = sorted(mesh.facets) + ([] if facets_only else sorted(mesh.regions))
         what = "facet group" if facets_only else "facet group or region"
         raise SceneError(f"{path}: unknown {what} {value!r}; valid names: {', '.join(names) or 'none'}"

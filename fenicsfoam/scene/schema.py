@@ -291,6 +291,14 @@ def _tag_key(key: str) -> int | str:
     return int(key) if re.fullmatch(r"-?[0-9]+", key) else key
 
 
+def _direction(table: _Table, key: str, required: bool = False) -> tuple[float, ...] | None:
+    """A direction: 3 finite numbers, not all zero (:class:`SceneError` naming the key)."""
+    value = table.vector(key, 3, required=required)
+    if value is not None and not any(value):
+        raise SceneError(f"{table.key(key)}: a direction must be a non-zero vector, got {list(value)}")
+    return value
+
+
 def _read_orientation(scene: _Table, mesh: MeshInfo) -> dict[str, Any] | None:
     """``[orientation]`` (optional): the kind and its parameters."""
     table = scene.table("orientation")
@@ -299,16 +307,16 @@ def _read_orientation(scene: _Table, mesh: MeshInfo) -> dict[str, Any] | None:
     kind = table.string("kind", required=True, choices=ORIENTATION_KINDS)
     spec: dict[str, Any] = {"kind": kind}
     if kind == "uniform":
-        spec["direction"] = table.vector("direction", 3, required=True)
+        spec["direction"] = _direction(table, "direction", required=True)
     elif kind == "per_tag":
         directions = table.table("directions", required=True)
         spec["directions"] = {}
         for key in directions.data:
             tags = _tags(_tag_key(key), directions.key(key), mesh.regions, "region")
-            d = directions.vector(key, 3, required=True)
+            d = _direction(directions, key, required=True)
             spec["directions"].update(dict.fromkeys(tags, d))
         directions.done()
-        spec["default"] = table.vector("default", 3)
+        spec["default"] = _direction(table, "default")
         if spec["default"] is not None and mesh.cell_tags and set(mesh.cell_tags) <= set(spec["directions"]):
             raise SceneError(f"{table.key('default')}: every cell tag of the mesh ({sorted(mesh.cell_tags)}) has a "
                              "direction, so the default would never be used; remove it")
