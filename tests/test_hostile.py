@@ -902,8 +902,8 @@ def test_a_mesh_in_millimetres_is_refused_naming_metres_not_a_material_instabili
 
 @pytest.mark.parametrize("scene, message", [
     (lambda: _beam(loads={"clamp": "clamped", "pressure": {"p": {"group": "beam", "pressure": 1.0}}}),
-     r"^loads\.pressure\.p\.group: 'beam' is a volume group \(a cell region\) of the mesh, and this load acts on "
-     r"a surface: give a facet group \(clamped, tip\)"),
+     r"^loads\.pressure\.p\.group: unknown facet group 'beam': it is a volume group \(a cell region\) of the "
+     r"mesh, and a surface is needed here; facet groups: clamped, tip"),
     (lambda: _ti_beam({"kind": "uniform", "direction": [0.0, 0.0, 0.0]}),
      r"^orientation\.direction: a direction must be a non-zero vector, got \[0\.0, 0\.0, 0\.0\]"),
     (lambda: _ti_beam({"kind": "per_tag", "directions": {"beam": [0, 0, 0]}}),

@@ -133,8 +133,9 @@ def _group(value: Any, path: str, mesh: MeshInfo, facets_only: bool = False) -> 
         if value in mesh.regions and not facets_only:
             return Group(value, tuple(mesh.regions[value]), True)
         if value in mesh.regions:  # a volume where a surface is needed
-            raise SceneError(f"{path}: {value!r} is a volume group (a cell region) of the mesh, and this load acts "
-                             f"on a surface: give a facet group ({', '.join(sorted(mesh.facets)) or 'none'})")
+            raise SceneError(f"{path}: unknown facet group {value!r}: it is a volume group (a cell region) of the "
+                             f"mesh, and a surface is needed here; facet groups: "
+                             f"{', '.join(sorted(mesh.facets)) or 'none'}")
         names = sorted(mesh.facets) + ([] if facets_only else sorted(mesh.regions))
         what = "facet group" if facets_only else "facet group or region"
         raise SceneError(f"{path}: unknown {what} {value!r}; valid names: {', '.join(names) or 'none'}"
