@@ -912,3 +912,37 @@ def test_a_mesh_in_millimetres_is_refused_naming_metres_not_a_material_instabili
 def test_a_volume_group_for_a_pressure_and_a_zero_direction_are_named(scene, message):
     with pytest.raises(SceneError, match=message):
         parse_scene(scene())
+
+
+def test_a_gmsh_volume_left_out_of_the_physical_groups_is_refused_before_meshing(tmp_path):
+    """Two boxes, one in a physical volume, a face of the other in a physical surface: gmsh writes that face's
+    triangles but not its box's tetrahedra; reading such a file crashed PETSc (SEGV)."""
+    import gmsh
+
+    from meshes.msh import physical_groups
+
+    path = tmp_path / "robot.msh"
+    gmsh.initialize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        kept = gmsh.model.occ.addBox(0, 0, 0, 0.02, 0.02, 0.02)
+        left_out = gmsh.model.occ.addBox(0.02, 0, 0, 0.02, 0.02, 0.02)
+        gmsh.model.occ.fragment([(3, kept)], [(3, left_out)])
+        gmsh.model.occ.synchronize()
+        gmsh.model.addPhysicalGroup(3, [kept], 1)
+        far = max(gmsh.model.getBoundary([(3, left_out)], oriented=False),
+                  key=lambda face: gmsh.model.occ.getCenterOfMass(*face)[0])  # the face at x = 0.04
+        gmsh.model.addPhysicalGroup(2, [far[1]], 10)
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 0.01)
+        gmsh.model.mesh.generate(3)
+        gmsh.write(str(path))
+    finally:
+        gmsh.finalize()
+    with pytest.raises(InputError, match=r"triangle\(s\) of the physical surface groups are faces of no "
+                                         r"tetrahedron: a volume is missing from the physical volume groups"):
+        physical_groups(path)
+    scene = {"geometry": {"builder": "file", "path": str(path)},
+             "regions": {"kept": {"tags": 1, "material": "isotropic", "E": 1e6, "nu": 0.3}},
+             "loads": {"clamp": 10}, "steps": [{"label": "a"}]}
+    with pytest.raises(SceneError, match=r"^geometry\.path: mesh file .*faces of no tetrahedron"):
+        parse_scene(scene)
