@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import stat
 import subprocess
@@ -946,3 +947,38 @@ def test_a_gmsh_volume_left_out_of_the_physical_groups_is_refused_before_meshing
              "loads": {"clamp": 10}, "steps": [{"label": "a"}]}
     with pytest.raises(SceneError, match=r"^geometry\.path: mesh file .*faces of no tetrahedron"):
         parse_scene(scene)
+
+
+def _api_calls(tmp_path):
+    from fenicsfoam.io import read_solution
+    from fenicsfoam.material import foam_material
+    from fenicsfoam.scene import load_scene
+    from homogenization.fft import homogenize_fft
+    from homogenization.tensors import engineering_constants, isotropic_voigt
+    from meshes.foam import VoronoiFoam
+
+    solid = np.ones((8, 8, 8), dtype=np.int8)
+    materials = [np.zeros((6, 6)), isotropic_voigt(1.0, 0.3)]
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "solution.npz").write_bytes(b"not an archive" * 8)
+    return {
+        "homogenize_fft tol": (lambda: homogenize_fft(solid, materials, tol="1e-4"), "tol must be a number"),
+        "homogenize_fft materials": (lambda: homogenize_fft(solid, "ab"), "materials[1] must be a 6×6 Voigt"),
+        "foam_material": (lambda: foam_material("0.18", 1.0, 12e6, 0.3), "density must be a number, got str"),
+        "to_stl": (lambda: VoronoiFoam(4, 0.3, seed=0).to_stl(".", 16), "to_stl path .: is a directory"),
+        "load_scene": (lambda: load_scene(42), "scene: expected a TOML file's path or a dict, got int 42"),
+        "parse_scene": (lambda: parse_scene([1, 2]), "scene: expected a table (a dict, as tomllib reads one)"),
+        "read_solution": (lambda: read_solution(tmp_path / "run"), "not a solution archive written by a scene run"),
+        "engineering_constants": (lambda: engineering_constants("abc"), "C must be a 6×6 matrix of numbers"),
+    }
+
+
+@pytest.mark.parametrize("call", ["homogenize_fft tol", "homogenize_fft materials", "foam_material", "to_stl",
+                                  "load_scene", "parse_scene", "read_solution", "engineering_constants"])
+def test_public_api_calls_with_bad_arguments_raise_the_family(tmp_path, call):
+    from foambase.errors import FenicsfoamError
+
+    function, message = _api_calls(tmp_path)[call]
+    with pytest.raises(FenicsfoamError, match=re.escape(message)) as info:
+        function()
+    assert isinstance(info.value, ValueError)  # an InputError: still the builtin a caller may catch

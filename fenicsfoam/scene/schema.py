@@ -565,6 +565,9 @@ def parse_scene(data: Mapping[str, Any], base: str | os.PathLike | None = None) 
         On the first problem found, naming its key path (e.g. ``regions.arms.density``) and what is valid.
 
     """
+    if not isinstance(data, Mapping):
+        raise SceneError(f"scene: expected a table (a dict, as tomllib reads one), got {type(data).__name__} "
+                         f"{data!r:.80}")
     scene = _Table(dict(data), "")
     name = scene.string("name", default="scene")
     if len(name) > MAX_NAME or not name.isprintable():
@@ -592,6 +595,8 @@ def load_scene(source: str | os.PathLike | Mapping[str, Any]) -> Scene:
     """Read and validate a scene from a TOML file (path) or a dict; :class:`SceneError` names the problem."""
     if isinstance(source, Mapping):
         return parse_scene(source)
+    if not isinstance(source, str | os.PathLike):
+        raise SceneError(f"scene: expected a TOML file's path or a dict, got {type(source).__name__} {source!r:.80}")
     path = Path(source)
     try:
         check_input_file(path, "scene", max_bytes=MAX_SCENE_BYTES)  # a FIFO or /dev/zero is never opened
