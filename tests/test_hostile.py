@@ -875,19 +875,6 @@ def test_a_hand_edited_cache_entry_is_named_and_not_used(cached_row, tmp_path, c
     assert re.search(message, caplog.text) and "recomputed" in caplog.text, caplog.text
 
 
-def test_homogenize_fft_refuses_a_singular_stiffness_in_the_api():
-    """Isolated solid blocks in void: the homogenized C is singular; the API raises as the command line does."""
-    from foambase.errors import ComputationError
-    from homogenization.fft import homogenize_fft
-    from homogenization.tensors import isotropic_voigt
-
-    image = np.zeros((8, 8, 8), dtype=np.int8)
-    image[2:6, 2:6, 2:6] = 1
-    with pytest.raises(ComputationError, match=r"^the homogenized stiffness is not positive definite \(C is not "
-                                               r"positive definite: smallest Mandel eigenvalue"):
-        homogenize_fft(image, [np.zeros((6, 6)), isotropic_voigt(1.0, 0.3)], tol=1e-2)
-
-
 def test_a_mesh_in_millimetres_is_refused_naming_metres_not_a_material_instability():
     from fenicsfoam.scene import run_scene
 
