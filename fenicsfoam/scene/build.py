@@ -32,7 +32,7 @@ from fenicsfoam import orientation as orient
 from fenicsfoam.constitutive import MaterialField
 from fenicsfoam.material import MATERIAL_KINDS, Isotropic, tabulated_regions
 from fenicsfoam.meshcheck import check_degree, check_units, mesh_extent
-from fenicsfoam.scene.kinds import GROUP_PROBE_KINDS, LOAD_KINDS, PROBE_KINDS, BuildContext
+from fenicsfoam.scene.kinds import GEOMETRY_KINDS, GROUP_PROBE_KINDS, LOAD_KINDS, PROBE_KINDS, BuildContext
 from fenicsfoam.scene.schema import PETSC_PREFIX, Region, Scene
 from fenicsfoam.scene.table import SceneError, key_error
 from fenicsfoam.solver import ElasticityProblem, LoadStep
@@ -166,46 +166,11 @@ def _build_orientation(scene: Scene, mesh, cell_tags):
 # --------------------------------------------------------------------------------------------------
 # Mesh
 # --------------------------------------------------------------------------------------------------
-def _mesh_file(comm, params: dict[str, Any]):
-    from meshes.msh import read_msh
-    return read_msh(comm, params["path"])
-
-
-def _mesh_beam(comm, params: dict[str, Any]):
-    from meshes.beam import make_beam
-    return make_beam(comm, **params)
-
-
-def _mesh_finger(comm, params: dict[str, Any]):
-    from meshes.finger import FingerGeometry, make_finger
-    h, order = params.pop("h"), params.pop("order")
-    try:
-        geometry = FingerGeometry(**params)
-    except ValueError as exc:
-        raise SceneError(f"geometry: {exc}") from exc
-    return make_finger(comm, h, geometry, order)
-
-
-def _mesh_tripod(comm, params: dict[str, Any]):
-    from meshes.tripod import TripodGeometry, make_tripod
-    h, order = params.pop("h"), params.pop("order")
-    try:
-        geometry = TripodGeometry(**params)
-    except ValueError as exc:  # named by _build_mesh
-        raise InputError(str(exc)) from exc
-    return make_tripod(comm, h, geometry, order)
-
-
-#: Geometry builders: ``[geometry] builder`` → function(comm, parameters) of the tagged mesh.
-MESHERS: dict[str, Callable] = {"file": _mesh_file, "beam": _mesh_beam, "tripod": _mesh_tripod,
-                                "finger": _mesh_finger}
-
-
 def _build_mesh(scene: Scene, comm):
     """The builder's tagged mesh; a parameter the builder refuses is a :class:`SceneError` naming the key."""
     params = dict(scene.geometry)
     try:
-        return MESHERS[scene.builder](comm, dict(params))
+        return GEOMETRY_KINDS[scene.builder].mesh(comm, dict(params))
     except InputError as exc:
         if isinstance(exc, SceneError):
             raise
@@ -218,10 +183,14 @@ def _build_mesh(scene: Scene, comm):
 def load_steps(scene: Scene) -> list[LoadStep]:
     """The scene's schedule as solver load steps (angles in radians)."""
     steps = []
-    for s in scene.steps:
-        angles = {} if s.servo_deg is None else {f"servo{i}": math.radians(a) for i, a in enumerate(s.servo_deg)}
+    servos = scene.servos
+    for index, s in enumerate(scene.steps):
+        # a servo's motion: its set-up (translation, horn at setup_deg) from the first step on, turned from there
+        turned = {**(dict.fromkeys(servos, 0.0) if index == 0 else {}), **s.servos}
+        angles = {name: math.radians(servos[name]["setup_deg"] + a) for name, a in turned.items()}
+        translations = {name: servos[name]["setup_translation"] for name in turned} if index == 0 else {}
         angles.update({name: math.radians(m["angle_deg"]) for name, m in s.motions.items() if "angle_deg" in m})
-        translations = {name: m["translation"] for name, m in s.motions.items() if "translation" in m}
+        translations.update({name: m["translation"] for name, m in s.motions.items() if "translation" in m})
         steps.append(LoadStep(s.label, gravity=s.gravity, increments=s.increments, angles=angles,
                               translations=translations, factors=dict(s.loads)))
     return steps
