@@ -193,7 +193,8 @@ def test_an_oversized_run_is_refused_before_assembly(tmp_path, monkeypatch, caps
     status = fenicsfoam_main(["run", str(scene), "--out", str(tmp_path / "out")])
     err = capsys.readouterr().err
     assert status == 2
-    assert re.search(r"\d+ cells, \d+ dofs on 1 rank\(s\), direct solver .*estimated \d+ MB of memory "
+    # neither solver fits: auto falls back to the iterative one, which does not fit either
+    assert re.search(r"\d+ cells, \d+ dofs on 1 rank\(s\), iterative solver .*estimated \d+ MB of memory "
                      r"\(100 MB available\)", err), err
     assert "--force" in err and not (tmp_path / "out").exists()
     # forced, it runs (the estimate is only an estimate)
@@ -285,3 +286,32 @@ def test_a_main_thread_stuck_in_compiled_code_is_ended_after_force_s(tmp_path):
     from foambase.signals import FORCE_S
     assert process.returncode == 143 and FORCE_S - 0.5 < stopped < FORCE_S + 3
     assert marker.read_text() == "SIGTERM"
+
+
+def test_the_solver_by_size():
+    from fenicsfoam.sizing import ITERATIVE_ABOVE_DOFS, choose_solver, estimate
+    from foambase.errors import InputError
+
+    assert choose_solver("auto", 10_000) == "direct"
+    assert choose_solver("auto", 10_000, direct_fits=False) == "iterative"
+    assert choose_solver("auto", ITERATIVE_ABOVE_DOFS + 1) == "iterative"
+    assert choose_solver("direct", 10**8) == "direct"
+    with pytest.raises(InputError, match="solver must be one of auto, direct, iterative"):
+        choose_solver("lu", 10)
+    # the model against two measurements of the benchmark page (P2 beam, 83 166 and 37 770 dofs)
+    assert estimate(16595, 83166, "direct", available=1e12).memory_bytes == pytest.approx(866 * 2**20, rel=0.05)
+    assert estimate(6974, 37770, "iterative", available=1e12).memory_bytes == pytest.approx(264 * 2**20, rel=0.05)
+    assert not estimate(0, 10**6, "direct", available=4e9).fits
+
+
+def test_the_iterative_solver_reaches_the_same_state(tmp_path):
+    """Krylov + GAMG (forced): the stretched bar's analytic state again, and the summary says which solver ran."""
+    scene = tmp_path / "bar.toml"
+    scene.write_text(BAR.replace("png = false", "png = false\nxdmf = false"))
+    result = run_scene(scene, tmp_path / "out", solver="iterative")
+    assert result.estimate["solver"] == "iterative"
+    u = result.displacement
+    x = u.function_space.tabulate_dof_coordinates()
+    values = u.x.array.reshape(-1, 3)
+    assert np.allclose(values[:, 0], (STRETCH[1] - 1) * x[:, 0], rtol=0, atol=1e-7 * L)  # every node, not only
+    assert np.allclose(values[:, 1:], 0.0, rtol=0, atol=1e-7 * L)                      # the prescribed ones
