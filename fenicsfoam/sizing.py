@@ -10,9 +10,9 @@ building a function space. :func:`choose_solver` picks the linear solver of the 
 
 Why by memory: measured on the Fig. 6 beam at P2 (``bench/bench_large_runs.py``; the benchmark page of 2026-11-27,
 "large runs"), LU is about 16× faster per Newton iteration at every measured size (10k–125k dofs; the two times
-grow alike, as n^1.5), so there is no time crossover to switch at; LU's memory grows faster than linearly and GAMG's linearly, so the
-iterative solver is what runs when LU would not fit, and above :data:`ITERATIVE_ABOVE_DOFS`, where the LU model
-would be extrapolated far beyond the measurements.
+grow alike, as n^1.5), so there is no time crossover to switch at; LU's memory grows faster than linearly and
+GAMG's linearly, so the iterative solver is what runs when LU would not fit, and above :data:`ITERATIVE_ABOVE_DOFS`,
+where the LU model would be extrapolated far beyond the measurements.
 
 :func:`estimate` is a model calibrated by the same measurements (serial, P2, corotational, CPU time on a shared
 machine): peak resident memory ``M = ranks × M0 + a · dofs^p`` and the CPU time of one Newton iteration
@@ -107,8 +107,11 @@ def size_of(mesh, degree: int) -> tuple[int, int]:
 
 
 def choose_solver(solver: str, dofs: int, direct_fits: bool = True) -> str:
-    """``direct`` or ``iterative``: ``solver`` itself; for ``auto`` the direct solver up to :data:`ITERATIVE_ABOVE_DOFS`
-    dofs while its estimated memory fits (``direct_fits``), the iterative one otherwise."""
+    """``direct`` or ``iterative``: ``solver`` itself, or for ``auto`` by size and memory.
+
+    ``auto``: the direct solver up to :data:`ITERATIVE_ABOVE_DOFS` dofs while its estimated memory fits
+    (``direct_fits``), the iterative one otherwise.
+    """
     if solver not in SOLVERS:
         raise InputError(f"solver must be one of {', '.join(SOLVERS)}, got {solver!r}")
     if solver != "auto":
