@@ -247,9 +247,10 @@ def test_sigint_during_a_newton_solve_stops_within_seconds(tmp_path):
             os.killpg(process.pid, signal.SIGKILL)
             process.communicate()
     assert process.returncode == 130, stderr
-    assert stopped < 4.0
+    assert stopped < 8.0  # seconds, on a loaded machine; typically under 2
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "interrupted" and "SIGINT" in summary["error"]
+    assert "compiled call" not in summary["error"]  # stopped by the solver's monitors, not by the watcher's deadline
     names = {p.name for p in out.iterdir()}
     assert not [n for n in names if n.startswith(".")]  # no temporary left
     assert names <= {"summary.json", "probes.csv", "run.log", "solution.pvd", *(
