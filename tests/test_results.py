@@ -113,6 +113,9 @@ def test_pyvista_reads_the_collection_one_time_per_step(bar):
     assert grid.n_cells == result.n_cells
     assert np.allclose(grid.cell_data["det_F"], STRETCH[1])
     assert bytes(np.asarray(grid.field_data["step_label"]).ravel()).decode() == "large"
+    single = pyvista.read(out / "solution_001_large.vtu")  # one step's file on its own
+    assert np.array_equal(single.cell_data["cauchy_stress"], grid.cell_data["cauchy_stress"])
+    assert np.array_equal(single.point_data["displacement"], read_solution(out).displacement("large"))
     summary = json.loads((out / "summary.json").read_text())
     assert {"solution.pvd", "solution_000_small.vtu", "solution_001_large.vtu", "run.log"} <= set(summary["files"])
     log = (out / "run.log").read_text()
