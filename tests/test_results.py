@@ -319,3 +319,29 @@ def test_the_iterative_solver_reaches_the_same_state(tmp_path):
     values = u.x.array.reshape(-1, 3)
     assert np.allclose(values[:, 0], (STRETCH[1] - 1) * x[:, 0], rtol=0, atol=1e-7 * L)  # every node, not only
     assert np.allclose(values[:, 1:], 0.0, rtol=0, atol=1e-7 * L)                      # the prescribed ones
+
+
+def test_progress_shows_on_a_terminal(tmp_path):
+    """stderr a terminal (a pseudo-terminal here): a status line rewritten in place with the Newton iterations."""
+    import pty
+
+    scene = tmp_path / "bar.toml"
+    scene.write_text(BAR.replace("png = false", "png = false\nxdmf = false"))
+    leader, follower = pty.openpty()
+    process = subprocess.Popen([sys.executable, "-m", "fenicsfoam.cli", "run", str(scene), "--out",
+                                str(tmp_path / "out")], stdout=subprocess.DEVNULL, stderr=follower)
+    os.close(follower)
+    shown = b""
+    while True:
+        try:
+            chunk = os.read(leader, 4096)
+        except OSError:  # the terminal closed with the process
+            break
+        if not chunk:
+            break
+        shown += chunk
+    os.close(leader)
+    assert process.wait(timeout=60) == 0
+    text = shown.decode(errors="replace")
+    assert re.search(r"\rstep large, load factor 1: Newton iteration \d, residual", text), text[-500:]
+    assert "step 2/2 large: done" in text
