@@ -168,9 +168,16 @@ class GroupProbeKind:
     build: Callable[[BuildContext, Group], Callable[[Any], Any]]  #: the probe, called with the displacement
     facets_only: bool = False                                  #: the group must be a facet group
     prescribed: bool = False                                   #: the group must be clamped or moved
+    contact: bool = False                                      #: GROUP names a ``[contacts.NAME]``, not a group
 
     def check(self, name: str, group: str, mesh: MeshInfo, loads: Mapping[str, Any]) -> Group:
         """The :class:`Group` the probe ``name`` refers to; :class:`SceneError` if the scene cannot provide it."""
+        if self.contact:
+            contacts = loads.get("contact") or {}
+            if group not in contacts:
+                raise SceneError(f"probes: {name!r}: no contact named {group!r}; declared contacts: "
+                                 f"{', '.join(sorted(contacts)) or 'none'} ([contacts.NAME])")
+            return Group(group, contacts[group]["group"].tags, False)
         resolved = _group(group, f"probes: {name!r}", mesh, self.facets_only)
         if self.prescribed:
             facets, cells = _prescribed(loads)
@@ -199,6 +206,16 @@ def _rotation(context: BuildContext, group: Group):
     return lambda u: probe(u).tolist()
 
 
+def _contact_force(context: BuildContext, group: Group):
+    contact = context.problem.external[group.name]
+    return lambda u: contact.force().tolist()
+
+
+def _contact_area(context: BuildContext, group: Group):
+    contact = context.problem.external[group.name]
+    return lambda u: contact.contact_area()
+
+
 def _volume(context: BuildContext, group: Group):
     from fenicsfoam.probes import EnclosedVolume
     return EnclosedVolume(context.V, context.tagged.facet_tags, group.tags)
@@ -207,12 +224,16 @@ def _volume(context: BuildContext, group: Group):
 #: Probes of any named group, written ``"KIND:GROUP"`` (GROUP a facet group name, or a region name where allowed):
 #: *reaction_force* (N, the force the supports exert on a clamped or moved group, from the residual),
 #: *displacement* (m, mean over the group), *rotation* (deg, rotation vector of the group's best-fit rotation),
-#: *volume* (m³, enclosed by a closed facet group, deformed). Documented in :mod:`fenicsfoam.probes`.
+#: *volume* (m³, enclosed by a closed facet group, deformed). Documented in :mod:`fenicsfoam.probes`. Of a
+#: contact (``"KIND:NAME"``, NAME a ``[contacts.NAME]``): *contact_force* (N, the force the obstacle exerts on the
+#: body) and *contact_area* (m², reference area in contact), documented in :mod:`fenicsfoam.contact`.
 GROUP_PROBE_KINDS: dict[str, GroupProbeKind] = {
     "reaction_force": GroupProbeKind("N", 3, _reaction_force, prescribed=True),
     "displacement": GroupProbeKind("m", 3, _mean_displacement),
     "rotation": GroupProbeKind("deg", 3, _rotation),
     "volume": GroupProbeKind("m3", 1, _volume, facets_only=True),
+    "contact_force": GroupProbeKind("N", 3, _contact_force, contact=True),
+    "contact_area": GroupProbeKind("m2", 1, _contact_area, contact=True),
 }
 
 
@@ -246,6 +267,8 @@ class LoadKind:
     motions: Callable[[Any, BuildContext], list] = _none   #: ``fenicsfoam.bcs.RigidMotion`` objects
     external: Callable[[Any, BuildContext], list] = _none  #: ``fenicsfoam.loads.Load`` objects
     named: bool = False                                    #: a table of named loads, moved by the steps
+    #: read from a top-level table of its own (``"contacts"``: ``[contacts.NAME]``) rather than a key of ``[loads]``
+    section: str | None = None
 
 
 #: Motion names the scene uses itself (no named load or motion ``[loads.KIND.NAME]`` may take them; ``servo0..2``
@@ -485,6 +508,59 @@ def _cables(named: dict[str, dict], context: BuildContext) -> list:
             for name, spec in named.items()]
 
 
+def _read_contacts(scene: _Table, key: str, mesh: MeshInfo) -> dict[str, dict]:
+    """``[contacts.NAME]``: a facet ``group``, an ``obstacle`` (plane | sphere | box) and its geometry.
+
+    Also the obstacle's ``motion`` (m, at factor 1; the steps' ``contacts = {NAME = factor}`` move it) and
+    ``nitsche`` (θ_N, :mod:`fenicsfoam.contact`).
+    """
+    from fenicsfoam.contact import NITSCHE, OBSTACLES
+
+    def one(table: _Table, name: str) -> dict:
+        group = _group(table.raw("group", required=True), table.key("group"), mesh, facets_only=True)
+        shape = table.string("obstacle", required=True, choices=tuple(OBSTACLES))
+        geometry: dict[str, Any] = {}
+        if shape == "plane":
+            geometry["point"] = table.vector("point", 3, required=True)
+            geometry["normal"] = table.vector("normal", 3, required=True)
+            if not any(geometry["normal"]):
+                raise SceneError(f"{table.key('normal')}: the plane's normal must be a non-zero vector")
+        elif shape == "sphere":
+            geometry["center"] = table.vector("center", 3, required=True)
+            geometry["radius"] = table.number("radius", required=True, check=lambda v: v > 0,
+                                              valid="a radius > 0 (m)")
+        else:
+            corners = table.has("min") or table.has("max")
+            if corners == (table.has("center") or table.has("half_sizes")):
+                raise SceneError(f"{table.path}: a box is given by min and max (corners, m) or by center and "
+                                 "half_sizes (m), one pair")
+            if corners:
+                lo, hi = table.vector("min", 3, required=True), table.vector("max", 3, required=True)
+            else:
+                center = np.asarray(table.vector("center", 3, required=True))
+                half = np.asarray(table.vector("half_sizes", 3, required=True))
+                lo, hi = tuple((center - half).tolist()), tuple((center + half).tolist())
+            if not all(b > a for a, b in zip(lo, hi)):
+                raise SceneError(f"{table.path}: the box must have max > min in every component, got min {list(lo)}, "
+                                 f"max {list(hi)}")
+            geometry.update(min=lo, max=hi)
+        motion = table.vector("motion", 3, default=[0.0, 0.0, 0.0])
+        nitsche = table.number("nitsche", default=NITSCHE, check=lambda v: v > 0,
+                               valid="a dimensionless Nitsche parameter > 0 (γ = nitsche·(λ+2μ)/h)")
+        table.done()
+        return {"group": group, "obstacle": shape, **geometry, "motion": motion, "nitsche": nitsche}
+    return _named_tables(scene, key, one)
+
+
+def _contacts(named: dict[str, dict], context: BuildContext) -> list:
+    from fenicsfoam.contact import OBSTACLES, Contact, Obstacle
+    tagged = context.tagged
+    return [Contact(name, tagged.mesh, tagged.facet_tags, spec["group"].tags,
+                    Obstacle(spec["obstacle"], motion=spec["motion"],
+                             **{k: spec[k] for k in OBSTACLES[spec["obstacle"]]}), nitsche=spec["nitsche"])
+            for name, spec in named.items()]
+
+
 #: The keys of ``[loads]``: ``gravity = [gx, gy, gz]`` (m/s², scaled by the steps' gravity factors), ``clamp =
 #: facet tags or a facet group name`` (held fixed), ``[loads.servo.NAME]`` (a servo actuator: a rigid servo body
 #: whose horn carries a clamped part of the mesh, set up by a translation and a horn angle that define the rest and
@@ -493,7 +569,9 @@ def _cables(named: dict[str, dict], context: BuildContext) -> list:
 #: loads ``[loads.force.NAME]`` (a total force, N), ``[loads.traction.NAME]`` (a dead traction, Pa),
 #: ``[loads.pressure.NAME]`` (a follower pressure, Pa), ``[loads.cable.NAME]`` (a tendon, N), each scaled by the
 #: steps' ``loads = {NAME = factor}``; and ``[loads.motion.NAME]`` (a rigid motion of a group, moved
-#: by the steps' ``motions``). Definitions: :mod:`fenicsfoam.loads`, :mod:`fenicsfoam.bcs`.
+#: by the steps' ``motions``). Contacts with rigid obstacles are declared in a table of their own,
+#: ``[contacts.NAME]``, and moved by the steps' ``contacts = {NAME = factor}``. Definitions: :mod:`fenicsfoam.loads`,
+#: :mod:`fenicsfoam.bcs`, :mod:`fenicsfoam.contact`.
 LOAD_KINDS: dict[str, LoadKind] = {
     "gravity": LoadKind(_read_gravity),
     "clamp": LoadKind(_read_clamp, _clamp_motions),
@@ -505,6 +583,7 @@ LOAD_KINDS: dict[str, LoadKind] = {
                          named=True),
     "cable": LoadKind(_read_cable, external=_cables, named=True),
     "motion": LoadKind(_read_motion, _motion_motions),
+    "contact": LoadKind(_read_contacts, external=_contacts, named=True, section="contacts"),
 }
 
 

@@ -49,14 +49,14 @@ PETSC_PREFIX = "scene_"
 #: Step labels name output files (``<label>.png``), so they are safe file names on every platform: ASCII letters,
 #: digits, ``_``, ``-`` and ``.``, starting with a letter or a digit, at most 64 characters.
 LABEL_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
-#: Names of a run's fixed outputs (``summary.json``, ``probes.csv``, ``solution.xdmf``, ``orientation.png``): no
-#: step label may take one (compared without case, as case-insensitive file systems do).
 #: The longest scene ``name`` (it titles pictures and the progress bar).
 MAX_NAME = 200
 #: The largest scene file read (a scene is a page of text; anything larger is not one).
 MAX_SCENE_BYTES = 16 << 20
 #: The most load increments a step may ask for (each is at least one Newton solve; more is a typo, not a plan).
 MAX_INCREMENTS = 10_000
+#: Names of a run's fixed outputs (``summary.json``, ``probes.csv``, ``solution.pvd``, ``orientation.png``,
+#: ``run.log``): no step label may take one (compared without case, as case-insensitive file systems do).
 RESERVED_NAMES = ("summary", "probes", "solution", "orientation", "run")
 
 
@@ -80,7 +80,7 @@ class Step:
     label: str
     gravity: float | None
     increments: int
-    loads: Mapping[str, float] = field(default_factory=dict)   #: factor per named load
+    loads: Mapping[str, float] = field(default_factory=dict)   #: factor per named load and per contact
     #: per named motion: ``{"angle_deg": float, "translation": (tx, ty, tz)}`` (either may be absent)
     motions: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     #: per servo actuator: its horn's angle from rest (deg); servos not listed keep theirs
@@ -369,23 +369,42 @@ def _read_blends(scene: _Table, regions: tuple[Region, ...]) -> tuple[dict[str, 
 def _read_loads(scene: _Table, mesh: MeshInfo) -> dict[str, Any]:
     """``[loads]``: one value per load kind (:data:`~fenicsfoam.scene.kinds.LOAD_KINDS`); named loads distinct."""
     table = scene.table("loads") or _Table({}, "loads")
-    loads = {key: kind.read(table, key, mesh) for key, kind in LOAD_KINDS.items()}
+    loads = {key: kind.read(table, key, mesh) if kind.section is None else kind.read(scene, kind.section, mesh)
+             for key, kind in LOAD_KINDS.items()}
     table.done()
     if loads["servos"]:
         loads["servo"] = tripod_flat_servos(mesh.params)
     seen: dict[str, str] = {}
     for key in [*(k for k, kind in LOAD_KINDS.items() if kind.named), "motion", "servo"]:
+        path = LOAD_KINDS[key].section or f"loads.{key}"
         for name in loads[key]:
             if name in seen:
-                raise SceneError(f"loads.{key}.{name}: the name {name!r} is already used by loads.{seen[name]}.{name} "
-                                 "(the steps refer to loads and motions by name)")
-            seen[name] = key
+                raise SceneError(f"{path}.{name}: the name {name!r} is already used by {seen[name]}.{name} "
+                                 "(the steps refer to loads, contacts and motions by name)")
+            seen[name] = path
     return loads
 
 
 def _named_loads(loads: Mapping[str, Any]) -> dict[str, str]:
     """Name → kind of every load the steps scale (``loads = {NAME = factor}``)."""
-    return {name: key for key, kind in LOAD_KINDS.items() if kind.named for name in loads[key]}
+    return {name: key for key, kind in LOAD_KINDS.items() if kind.named and kind.section is None
+            for name in loads[key]}
+
+
+def _read_step_contacts(table: _Table, loads: Mapping[str, Any]) -> dict[str, float]:
+    """``contacts = {NAME = factor}``: the obstacles' positions, ``factor × motion`` from where they were declared."""
+    factors = table.table("contacts")
+    if factors is None:
+        return {}
+    declared = loads.get("contact") or {}
+    result = {}
+    for name in factors.data:
+        if name not in declared:
+            raise SceneError(f"{factors.key(name)}: no contact named {name!r}; declared contacts: "
+                             f"{', '.join(sorted(declared)) or 'none'} ([contacts.NAME])")
+        result[name] = factors.number(name)
+    factors.done()
+    return result
 
 
 def _read_step_loads(table: _Table, loads: Mapping[str, Any]) -> dict[str, float]:
@@ -486,7 +505,7 @@ def _read_step(table: _Table, loads: Mapping[str, Any]) -> Step:
     gravity = table.number("gravity", check=lambda v: v >= 0, valid="a load factor >= 0 (1: full gravity)")
     servos = _read_step_servos(table, loads)
     increments = table.integer("increments", default=1, minimum=1, maximum=MAX_INCREMENTS)
-    factors = _read_step_loads(table, loads)
+    factors = {**_read_step_loads(table, loads), **_read_step_contacts(table, loads)}
     motions = _read_step_motions(table, loads)
     table.done()
     return Step(label, gravity, increments, factors, motions, servos)
