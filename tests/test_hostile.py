@@ -149,7 +149,7 @@ def _ti_beam(orientation):
      r"^loads\.force\.clamp: the name 'clamp' is reserved"),
     (lambda: _beam(loads={"clamp": "clamped", "pressure": {"servo1": {"group": "tip", "pressure": 1.0}}}),
      r"^loads\.pressure\.servo1: the name 'servo1' is reserved"),
-    (lambda: _ti_beam({"kind": "per_tag", "directions": {"beam": [1.0, 0, 0]}, "default": [0, 0, 0]}),
+    (lambda: _ti_beam({"kind": "per_tag", "directions": {"beam": [1.0, 0, 0]}, "default": [0, 0, 1.0]}),
      r"^orientation\.default: every cell tag of the mesh \(\[1\]\) has a direction"),
     (lambda: _ti_beam({"kind": "per_tag", "directions": {"\u00b2": [1.0, 0, 0]}}),
      r"^orientation\.directions\.\u00b2: unknown region name '\u00b2'"),
