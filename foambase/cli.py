@@ -52,7 +52,7 @@ from foambase.signals import interruptible
 from foambase.threads import single_threaded_blas_by_default
 
 __all__ = ["EPILOG", "Command", "build_parser", "dispatch", "main", "main_single", "nonempty_path", "report_checks",
-           "resolve"]
+           "resolve", "shorten"]
 
 #: The exit status of a Ctrl-C (128 + SIGINT).
 EXIT_INTERRUPTED = 130
@@ -154,6 +154,18 @@ def dispatch(parser: argparse.ArgumentParser, argv: Sequence[str]) -> int:
     return code
 
 
+#: The longest error message printed whole (a message quoting a huge value is cut in its middle).
+MAX_MESSAGE = 2000
+
+
+def shorten(text: str, limit: int = MAX_MESSAGE) -> str:
+    """``text``, or its first and last ``limit // 2`` characters around a note of how many were left out."""
+    if len(text) <= limit:
+        return text
+    half = limit // 2
+    return f"{text[:half]} … ({len(text) - 2 * half} characters left out) … {text[-half:]}"
+
+
 def _exit_without_cleanup(code: int) -> None:
     """End the process now with ``code``: output flushed, no exit-time handlers of native libraries.
 
@@ -176,10 +188,11 @@ def _dispatch(own_parser: argparse.ArgumentParser, command: Command, args: argpa
     except FenicsfoamError as error:
         code = exit_code(error)
         if not failed_together(code):  # the other ranks wait in a collective call: stop them, say why here
-            print(f"{own_parser.prog}: error on rank {launcher_rank()} only: {error}", file=sys.stderr, flush=True)
+            print(f"{own_parser.prog}: error on rank {launcher_rank()} only: {shorten(str(error))}", file=sys.stderr,
+                  flush=True)
             abort(code)
         if launcher_rank() == 0:
-            print(f"{own_parser.prog}: error: {error}", file=sys.stderr)
+            print(f"{own_parser.prog}: error: {shorten(str(error))}", file=sys.stderr)
         return code
     except KeyboardInterrupt as interruption:  # foambase.signals.Interrupted carries its signal's exit status
         if launcher_rank() == 0:

@@ -969,3 +969,10 @@ def test_public_api_calls_with_bad_arguments_raise_the_family(tmp_path, call):
     with pytest.raises(FenicsfoamError, match=re.escape(message)) as info:
         function()
     assert isinstance(info.value, ValueError)  # an InputError: still the builtin a caller may catch
+
+
+def test_a_huge_value_is_not_echoed_back_whole(work, capsys):
+    (work / "scene.toml").write_text(scene_text().replace('[loads]', f'[fem.petsc]\nsnes_type = "{"x" * 5_000_000}"\n'
+                                                                     '[loads]'))
+    status, err = status_of([fenicsfoam_main, "run", str(work / "scene.toml"), "--out", str(work / "out")], capsys)
+    assert status == 2 and "fem.petsc.snes_type" in err and "characters left out" in err and len(err) < 3000
