@@ -245,7 +245,7 @@ ISO = 'material = "isotropic"\nE = 1e6\nnu = 0.3\nrho = 1000.0\n'
      "name: expected a printable name of at most 200 characters"),
     (lambda s: s.replace(ISO, FOAM.replace("E_solid = 1e6", 'E_solid = {calibration = "/dev/zero"}')).replace(
         "[loads]", '[orientation]\nkind = "uniform"\ndirection = [1.0, 0.0, 0.0]\n[loads]'),
-     "regions.beam.E_solid.calibration: calibration file /dev/zero: is a character device"),
+     "regions.beam.E_solid.calibration: cannot read calibration file /dev/zero: is a character device"),
     (lambda s: s.replace("[loads]", '[fem.petsc]\nsnes_rtol = nan\n[loads]'),
      "fem.petsc.snes_rtol: nan is not a finite number"),
     (lambda s: s.replace("[loads]", '[fem.petsc]\nsnes_atol = -inf\n[loads]'),

@@ -43,7 +43,7 @@ def _load(path: Path) -> dict[str, Any]:
         check_input_file(path, "calibration file", max_bytes=1 << 20)  # never opens a FIFO or reads /dev/zero
         data = json.loads(path.read_text(encoding="utf-8"))
     except InputError as exc:
-        raise CalibrationError(str(exc)) from exc
+        raise CalibrationError(f"cannot read {exc}") from exc
     except UnicodeDecodeError as exc:
         raise CalibrationError(f"calibration file {str(path)!r} is not UTF-8 text (byte {exc.start})") from exc
     except OSError as exc:
