@@ -215,6 +215,21 @@ class Contact(Load):
         """The total force (N) the obstacle exerts on the body at the current state (collective)."""
         return np.array([self._sum(f) for f in self._force_forms])
 
+    def force_gradient(self, component: int) -> np.ndarray:
+        """Derivative of the force's ``component`` with respect to the owned dofs of ``u`` (collective)."""
+        from dolfinx.fem.petsc import assemble_vector
+        from petsc4py import PETSc
+        forms = self.__dict__.setdefault("_force_gradient_forms", {})
+        if component not in forms:
+            V = self._u.function_space
+            functional = self._pressure * self._normal[component] * self.ds
+            forms[component] = fem.form(ufl.derivative(functional, self._u, ufl.TestFunction(V)))
+        b = assemble_vector(forms[component])
+        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        gradient = b.array.copy()
+        b.destroy()
+        return gradient
+
     def contact_area(self) -> float:
         """The reference area (m²) of the group where the contact pressure is positive (collective)."""
         return float(self._sum(self._area_form))

@@ -575,8 +575,8 @@ class ElasticityProblem:
         the Dirichlet conditions, and of the adjoint equations (:mod:`fenicsfoam.sensitivity`). The rotation
         field is updated from ``u`` first. ``A`` is reused if given (the pattern of :meth:`snes`'s matrix).
         """
-        if A is None:
-            A = create_matrix(self._jacobian, self._A.getType())
+        if A is None:  # the solver's pattern (a cable's couplings included)
+            A = self._A.duplicate()
         self.u.x.scatter_forward()
         if self.rotation is not None:
             self.rotation.update()
