@@ -18,19 +18,13 @@ from typing import Any
 
 from mpi4py import MPI
 
+from fenicsfoam.paper import TABLE_I, deltas  # noqa: F401  (the demos' Table I)
 from foambase.cli import report_checks as report
 from foambase.files import write_json_atomic
 from foambase.logs import setup_logging
 
 #: The shipped scene files.
 SCENES = Path(__file__).resolve().parent / "scenes"
-#: The paper's Table I, (simulated, real) at rest, middle, top: centre rotation (deg), centre height (mm).
-TABLE_I = {
-    "tripod_case_a": {"angle": ((-3.36, 4.47, 14.85), (0.0, 3.96, 20.49)),
-                      "height": ((67.57, 81.95, 89.88), (71.7, 84.5, 92.9))},
-    "tripod_case_b": {"angle": ((-9.31, 8.15, 27.21), (0.0, 5.53, 22.1)),
-                      "height": ((68.67, 80.73, 87.0), (73.5, 85.8, 94.0))},
-}
 #: Fig. 6 of the paper: scene → (real, simulated) tip deflection in mm (the caption's blue, green, red beams).
 FIG6_MM = {"beam_iso": (-48.0, -47.2), "beam_ti_y": (-23.0, -19.1), "beam_ti_z": (-24.0, -22.2)}
 #: Ours / the real robot's change from rest (heights of cases A and B, |twist| of case B) lies in this band:
@@ -115,12 +109,6 @@ def parse_args(description: str, default_out: str, ci_help: str, argv: list[str]
                ) -> argparse.Namespace:
     """Parse ``--out DIR`` and ``--ci`` (:func:`parser`)."""
     return parser(description, default_out, ci_help).parse_args(argv)
-
-
-def deltas(values: Iterable[float]) -> tuple[float, float]:
-    """(middle − rest, top − rest) of the values at (rest, middle, top)."""
-    values = tuple(values)
-    return values[1] - values[0], values[2] - values[0]
 
 
 def ratio_check(name: str, ours: float, reference: float, band: tuple[float, float], what: str) -> list[str]:

@@ -57,6 +57,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from fenicsfoam.material import tabulated_regions
 from fenicsfoam.scene.calibration import (
     LEGACY_TABLE,
     CalibrationError,
@@ -140,7 +141,10 @@ def _load_raw(source) -> tuple[dict[str, Any], Path | None]:
 
 
 def scene_with_E_solid(data: Mapping[str, Any], E_solid: float) -> dict[str, Any]:
-    """A copy of a scene dict with ``E_solid`` set in every foam region (the only change)."""
+    """A copy of a scene dict with ``E_solid`` set in every foam region (the only change).
+
+    For a scene as ``tomllib`` reads it; a parsed scene is varied with :func:`fenicsfoam.scene.vary_scene`.
+    """
     out = copy.deepcopy(dict(data))
     for region in out.get("regions", {}).values():
         if isinstance(region, dict) and region.get("material") == "foam":
@@ -184,7 +188,7 @@ def _validate(data: dict[str, Any], base: Path | None, probe: str, step: str, re
             raise CalibrationError(f"{name} {label!r} is not a step of scene {scene.name!r}; its steps: {labels}")
     if relative_to == step:
         raise CalibrationError(f"relative_to {relative_to!r} is the calibrated step itself: the change is always 0")
-    foams = {r.name: r.parameters["E_solid"] for r in scene.regions if r.material == "foam"}
+    foams = {r.name: r.parameters["E_solid"] for r in tabulated_regions(scene.regions)}
     if not foams:
         raise CalibrationError(f"scene {scene.name!r} has no foam region: E_solid calibrates the foams' solid; "
                                "its regions are " + ", ".join(f"{r.name} ({r.material})" for r in scene.regions))
@@ -195,18 +199,17 @@ def _validate(data: dict[str, Any], base: Path | None, probe: str, step: str, re
 
 
 class _Runs:
-    """Memoised probe values ``p(E_solid)`` from scene runs."""
+    """Memoised probe values ``p(E_solid)`` from runs of the scene varied in ``E_solid`` (:func:`vary_scene`)."""
 
-    def __init__(self, data, base, probe, step, relative_to, comm, component=None):
-        self.data, self.base, self.probe, self.step, self.relative_to, self.comm = (data, base, probe, step,
-                                                                                     relative_to, comm)
+    def __init__(self, scene, probe, step, relative_to, comm, component=None):
+        self.scene, self.probe, self.step, self.relative_to, self.comm = scene, probe, step, relative_to, comm
         self.index = None if component is None else COMPONENTS.index(component)
         self.values: dict[float, float] = {}
 
     def __call__(self, E: float) -> float:
-        from fenicsfoam.scene import parse_scene, run_scene
+        from fenicsfoam.scene import run_scene, vary_scene
         if E not in self.values:
-            result = run_scene(parse_scene(scene_with_E_solid(self.data, E), self.base), comm=self.comm)
+            result = run_scene(vary_scene(self.scene, {"E_solid": E}), comm=self.comm)
             values = result.probe(self.probe, relative_to=self.relative_to)
             value = values[self.step]
             self.values[E] = float(value if self.index is None else value[self.index])
@@ -273,7 +276,7 @@ def calibrate_E_solid(source, probe: str, step: str, target: float, *, relative_
     lo, hi = (E0 * 1e-3, E0 * 1e3) if E_range is None else (float(E_range[0]), float(E_range[1]))
     if not (0 < lo < hi and math.isfinite(hi)):
         raise CalibrationError(f"E_range {E_range!r} must be two increasing positive moduli (Pa)")
-    runs = _Runs(data, base, probe, step, relative_to, comm, component)
+    runs = _Runs(scene, probe, step, relative_to, comm, component)
     what = (f"{probe}" + (f" ({component})" if component else "") + f" at step {step!r}"
             + (f" relative to {relative_to!r}" if relative_to else ""))
 
@@ -348,7 +351,7 @@ def calibrate_E_solid(source, probe: str, step: str, target: float, *, relative_
                               runs=len(runs.values), relative_to=relative_to, method=method, scene=scene.name,
                               E_solid_initial=float(E0), history=runs.history, component=component,
                               foam_tables=tuple(foam_table_records((r.name, r.parameters.get("table"))
-                                                                   for r in scene.regions if r.material == "foam")))
+                                                                   for r in tabulated_regions(scene.regions))))
     logger.info("calibrated E_solid = %.10g Pa (%s = %.10g, target %.10g) in %d runs", calibration.E_solid, probe,
                 calibration.achieved, target, calibration.runs)
     if out_dir is not None:

@@ -221,9 +221,9 @@ def _check_unknowns(unknowns: Mapping[str, Sequence[float] | None], scene,
     Servo angles (deg; default the servo range) and the factors of named forces, tractions, pressures and cables
     (bounds required; a cable's ≥ 0).
     """
-    from fenicsfoam.design import ACTUATOR_KINDS, SERVOS
+    from fenicsfoam.design import ACTUATOR_KINDS
     loads = {name: kind for kind in ACTUATOR_KINDS for name in (scene.loads.get(kind) or {})}
-    servos = SERVOS if scene.servos else ()
+    servos = tuple(scene.servos)
     valid = ", ".join([*servos, *loads]) or "none (the scene has no servos and no named force, traction, pressure " \
         "or cable)"
     if not unknowns:
@@ -388,14 +388,14 @@ class InverseController:
     def __init__(self, source, comm=None, servo_range: Sequence[float] = SERVO_RANGE,
                  tolerances: Mapping[str, float] | None = None, max_iterations: int = 60,
                  unknowns: Mapping[str, Sequence[float] | None] | Sequence[str] | None = None):
-        from fenicsfoam.design import SERVOS, SceneDesign
+        from fenicsfoam.design import SceneDesign
         from fenicsfoam.scene import Scene, load_scene
 
         scene = source if isinstance(source, Scene) else load_scene(source)
         self.servo_range = _check_range(servo_range)
         if unknowns is None:
             _check_default_unknowns(scene)
-            unknowns = dict.fromkeys(SERVOS)
+            unknowns = dict.fromkeys(scene.servos)
         elif not isinstance(unknowns, Mapping):
             unknowns = dict.fromkeys(unknowns)
         self.bounds = _check_unknowns(unknowns, scene, self.servo_range)
@@ -422,9 +422,8 @@ class InverseController:
         self.initial = np.asarray(values, dtype=float)
 
     def _check_initial(self, initial: np.ndarray) -> None:
-        from fenicsfoam.design import SERVOS
         if np.any(initial < self.lo) or np.any(initial > self.hi):
-            if self.names == list(SERVOS):
+            if self.names == list(self.scene.servos):
                 lo, hi = self.servo_range
                 raise InputError(f"initial servo angles {initial.tolist()} deg (the last step's servo_deg) lie "
                                  f"outside the servo range [{lo:g}, {hi:g}] deg")
@@ -485,18 +484,18 @@ class InverseController:
 
 
 def _check_default_unknowns(scene) -> None:
-    if scene.builder != "tripod" or not scene.servos:
-        raise InputError(f"scene {scene.name!r}: inverse control needs the tripod builder with loads.servos = true "
-                         "for its default unknowns (the servos), or unknowns: named loads' factors, servo angles")
+    if scene.builder != "tripod" or len(scene.servos) != 3:
+        raise InputError(f"scene {scene.name!r}: inverse control needs the tripod builder with three servos "
+                         "(loads.servos = true, or three [loads.servo.NAME]) for its default unknowns, or unknowns: "
+                         "named loads' factors, servo angles")
 
 
 def _scene_value(scene, name: str) -> float:
-    """An unknown's value at the scene's last step: a servo angle (deg) or a load factor (0 if no step sets it)."""
-    from fenicsfoam.design import SERVOS
+    """An unknown's value at the scene's last step: a servo angle from rest (deg) or a load factor (0 if none)."""
     value = 0.0
     for step in scene.steps:
-        if name in SERVOS and step.servo_deg is not None:
-            value = float(step.servo_deg[SERVOS.index(name)])
+        if name in step.servos:
+            value = float(step.servos[name])
         elif name in step.loads:
             value = float(step.loads[name])
     return value
@@ -539,8 +538,7 @@ class _Run:
                     dict(zip(self.unknowns, np.round(self.theta, 6).tolist())), self.misfit.tolist())
 
     def result(self, reached: bool) -> ControlResult:
-        from fenicsfoam.design import SERVOS
-        servos = [i for i, n in enumerate(self.unknowns) if n in SERVOS]
+        servos = [i for i, n in enumerate(self.unknowns) if n in self.controller.scene.servos]
         return ControlResult(servo_deg=self.theta[servos].tolist(), target=dict(self.targets),
                              achieved={n: self.values[n] for n in self.names}, iterations=self.iterations,
                              scene_solves=self.design.solves - self.solves0, reached=reached,
@@ -837,9 +835,8 @@ def _run(args: argparse.Namespace) -> int:
                 print(f"closest pose written to {args.out / 'control.json'} (reached = false)")
             raise
     if comm.rank == 0:
-        from fenicsfoam.design import SERVOS
-        for name, value in result.unknowns.items():
-            print(f"{name}: {value:.6f}" + (" deg" if name in SERVOS else " (load factor)"))
+        print("unknowns (servo angles in deg, load factors): "
+              + ", ".join(f"{name} = {value:.6f}" for name, value in result.unknowns.items()))
         for name, value in result.target.items():
             unit = target_unit(name)
             print(f"{name}: target {value:.9g} {unit}, achieved {result.achieved[name]:.9g} {unit}")

@@ -20,12 +20,14 @@ parameter                  meaning (unit)
 
 The *l* axis of a cell is ``a_c = R_z(offset + φ_c) a⁰_c(pitch)``, ``a⁰`` the scene's field without offset;
 ``∂a/∂φ = e_z × a`` (per radian) and for the spiral ``∂a⁰/∂p = cos p e_r − h sin p e_θ``
-(:func:`fenicsfoam.orientation.spiral_directions`). Material parameters act through the DG0 moduli and mass
-density of :class:`fenicsfoam.grading.CellMaterials` (the foam table's exact derivatives); servo angles through
-the Dirichlet values, load factors through the load's own term (``∂R/∂s``). :meth:`SceneDesign.gradient` chains
-the adjoint's per-cell gradients (:mod:`fenicsfoam.sensitivity`) to the parameters: one factorization and one
-adjoint solve per probe, whatever the number of parameters. Per-cell parameters and their gradients are arrays
-over the owned cells (their global order: :meth:`SceneDesign.gather`).
+(:func:`fenicsfoam.orientation.spiral_directions`). Material parameters (``E_solid``, ``density:REGION``,
+``gamma:REGION``) are first set in the scene itself and checked there (:func:`fenicsfoam.scene.vary_scene`),
+then act through the DG0 moduli and mass density of :class:`fenicsfoam.grading.CellMaterials` (the foam table's
+exact derivatives); servo angles through the Dirichlet values, load factors through the load's own term
+(``∂R/∂s``). :meth:`SceneDesign.gradient` chains the adjoint's
+per-cell gradients (:mod:`fenicsfoam.sensitivity`) to the parameters: one factorization and one adjoint solve
+per probe, whatever the number of parameters. Per-cell parameters and their gradients are arrays over the owned
+cells (their global order: :meth:`SceneDesign.gather`).
 
 Targets may also be one component of a vector probe, ``"KIND:GROUP[i]"`` (``displacement:tip[2]``,
 ``contact_force:ball[2]``): :meth:`SceneDesign.add_probe` builds them with their gradients.
@@ -56,7 +58,8 @@ __all__ = ["ACTUATOR_KINDS", "COMPONENT_KINDS", "MISFIT_SCALES", "DesignHistory"
 
 logger = logging.getLogger(__name__)
 
-#: The servo parameters (the Tripod's three horns), in order.
+#: The servo parameters of ``loads.servos = true`` (the Tripod's three horns), in order; a scene with
+#: ``[loads.servo.NAME]`` has its own names (:attr:`SceneDesign.servos`).
 SERVOS = ("servo0", "servo1", "servo2")
 #: The load kinds whose named loads are parameters (their factor at the last step): the actuators.
 ACTUATOR_KINDS = ("force", "traction", "pressure", "cable")
@@ -191,8 +194,8 @@ class SceneDesign:
     # ----------------------------------------------------------------------------------------------
     @property
     def servos(self) -> tuple[str, ...]:
-        """The servo parameters of the scene (empty without ``loads.servos``)."""
-        return SERVOS if self.scene.servos else ()
+        """The servo parameters of the scene: its servo actuators' names (``servo0..2`` with ``loads.servos``)."""
+        return tuple(self.scene.servos)
 
     @property
     def actuators(self) -> tuple[str, ...]:
@@ -227,8 +230,8 @@ class SceneDesign:
     def get(self, name: str):
         """The current value of a parameter (a float, or an array over the owned cells)."""
         self._check(name)
-        if name in SERVOS:
-            return self.servo_deg()[SERVOS.index(name)]
+        if name in self.servos:
+            return self.servo_deg()[self.servos.index(name)]
         if name in self.actuators:
             return self.load_factor(name)
         if name == "E_solid":
@@ -252,11 +255,15 @@ class SceneDesign:
         """Set parameters (``{name: value}``) and update the coefficient data; solve afterwards."""
         for name in values:
             self._check(name)
+        scalars = {n: v for n, v in values.items() if n == "E_solid" or ":" in n}
+        if scalars:  # the scene's own values, checked as a scene's (fenicsfoam.scene.vary_scene) before any change
+            from fenicsfoam.scene import vary_scene
+            self.scene = vary_scene(self.scene, {n: float(v) for n, v in scalars.items()})
         material, orientation = False, False
-        servo = list(self.servo_deg()) if any(n in SERVOS for n in values) else None
+        servo = list(self.servo_deg()) if any(n in self.servos for n in values) else None
         for name, value in values.items():
-            if name in SERVOS:
-                servo[SERVOS.index(name)] = float(value)
+            if name in self.servos:
+                servo[self.servos.index(name)] = float(value)
             elif name in self.actuators:
                 self.set_load_factor(name, float(value))
             elif name == "E_solid":
@@ -288,22 +295,29 @@ class SceneDesign:
         if orientation:
             self.orientation.apply()
 
-    def servo_deg(self) -> tuple[float, float, float]:
-        """The last step's servo angles (deg); those in force before it where it gives none."""
+    def _rest_deg(self, name: str) -> float:
+        return self.scene.servos[name]["setup_deg"]
+
+    def servo_deg(self) -> tuple[float, ...]:
+        """The last step's servo angles from rest (deg), in the order of :attr:`servos`.
+
+        Where the last step gives none, those in force before it.
+        """
         if not self.servos:
-            raise InputError(f"scene {self.scene.name!r} has no servos (loads.servos = true)")
-        angles = [0.0, 0.0, 0.0]
+            raise InputError(f"scene {self.scene.name!r} has no servos (loads.servos = true or [loads.servo.NAME])")
+        angles = [0.0] * len(self.servos)
         for step in self.steps:
-            for i, name in enumerate(SERVOS):
+            for i, name in enumerate(self.servos):
                 if name in step.angles:
-                    angles[i] = math.degrees(step.angles[name])
+                    angles[i] = math.degrees(step.angles[name]) - self._rest_deg(name)
         return tuple(angles)
 
     def set_servo_deg(self, angles: Sequence[float]) -> None:
-        """Set the last step's servo angles (deg)."""
+        """Set the last step's servo angles from rest (deg), in the order of :attr:`servos`."""
         from dataclasses import replace
         last = self.steps[-1]
-        self.steps[-1] = replace(last, angles={n: math.radians(float(a)) for n, a in zip(SERVOS, angles)})
+        self.steps[-1] = replace(last, angles={**last.angles, **{n: math.radians(self._rest_deg(n) + float(a))
+                                                                for n, a in zip(self.servos, angles)}})
 
     def load_factor(self, name: str) -> float:
         """The factor of the named load at the end of the last step (the last one a step gives; 0 if none)."""
@@ -380,7 +394,8 @@ class SceneDesign:
         The move takes ``ceil(max |Δθ| / increment_deg)`` increments (halved on failure by the solver).
         """
         from fenicsfoam.solver import LoadStep
-        current = np.degrees([self.problem.loads.angles[n] for n in SERVOS])
+        current = np.degrees([self.problem.loads.angles[n] for n in self.servos]) - [self._rest_deg(n)
+                                                                                     for n in self.servos]
         change = float(np.max(np.abs(np.asarray(angles, dtype=float) - current)))
         self.set_servo_deg(angles)
         self.solves += 1
@@ -432,7 +447,7 @@ class SceneDesign:
         from fenicsfoam.sensitivity import material_coefficients
 
         actuators = [p for p in parameters if p in self.actuators]
-        material = [p for p in parameters if p not in SERVOS and p not in actuators
+        material = [p for p in parameters if p not in self.servos and p not in actuators
                     and not p.startswith("orientation")]
         oriented = [p for p in parameters if p.startswith("orientation")]
         coefficients = material_coefficients(self.problem)
@@ -442,7 +457,7 @@ class SceneDesign:
             derivatives = self.cells.derivatives()
         if oriented:
             fields["orientation"] = coefficients["orientation"]
-        motions = [p for p in parameters if p in SERVOS]
+        motions = [p for p in parameters if p in self.servos]
         adjoint = self.adjoint
         adjoint.factor()
         result = {}

@@ -21,6 +21,8 @@ import numpy as np
 from dolfinx import fem
 from dolfinx.mesh import Mesh, MeshTagsMetaClass, compute_midpoints
 
+from foambase.cells import num_owned_cells
+from foambase.cells import owned_cell_tags as _owned_cell_tags
 from foambase.errors import InputError
 
 __all__ = [
@@ -48,10 +50,6 @@ class OrientationError(InputError):
     """An orientation field cannot be built: zero or non-finite directions, or cells without a direction."""
 
 
-def _num_owned_cells(mesh: Mesh) -> int:
-    return mesh.topology.index_map(mesh.topology.dim).size_local
-
-
 def cell_function(mesh: Mesh, values: np.ndarray, name: str | None = None) -> fem.Function:
     """A DG0 function with the given values on the cells this rank owns; ghost cells by ``scatter_forward``.
 
@@ -67,7 +65,7 @@ def cell_function(mesh: Mesh, values: np.ndarray, name: str | None = None) -> fe
 
     """
     values = np.asarray(values, dtype=float)
-    n = _num_owned_cells(mesh)
+    n = num_owned_cells(mesh)
     if values.shape[0] != n or values.ndim not in (1, 2):
         raise InputError(f"expected values of shape ({n},) or ({n}, k) for the {n} owned cells, got {values.shape}")
     if values.ndim == 1:
@@ -82,7 +80,7 @@ def cell_function(mesh: Mesh, values: np.ndarray, name: str | None = None) -> fe
 def cell_values(f: fem.Function) -> np.ndarray:
     """The values of a DG0 function on the owned cells: ``(n_owned,)`` or ``(n_owned, k)`` (inverse of the above)."""
     V = f.function_space
-    n = _num_owned_cells(V.mesh)
+    n = num_owned_cells(V.mesh)
     bs = V.dofmap.index_map_bs
     dofs = V.dofmap.list.array.reshape(-1, V.dofmap.dof_layout.num_dofs)[:n, 0]
     values = f.x.array.reshape(-1, bs)[dofs]
@@ -92,7 +90,7 @@ def cell_values(f: fem.Function) -> np.ndarray:
 def set_cell_values(f: fem.Function, values: np.ndarray) -> None:
     """Write ``values`` (one row per owned cell) into the DG0 function ``f``; ghost cells by ``scatter_forward``."""
     V = f.function_space
-    n = _num_owned_cells(V.mesh)
+    n = num_owned_cells(V.mesh)
     bs = V.dofmap.index_map_bs
     values = np.asarray(values, dtype=float)
     if values.size != n * bs:
@@ -104,14 +102,7 @@ def set_cell_values(f: fem.Function, values: np.ndarray) -> None:
 
 def owned_cell_tags(mesh: Mesh, cell_tags: MeshTagsMetaClass) -> np.ndarray:
     """The tag of every cell this rank owns, :data:`UNTAGGED` where ``cell_tags`` has none."""
-    tdim = mesh.topology.dim
-    if cell_tags.dim != tdim:
-        raise InputError(f"cell_tags must tag cells (dimension {tdim}), got entities of dimension {cell_tags.dim}")
-    n = _num_owned_cells(mesh)
-    tags = np.full(n, UNTAGGED, dtype=np.int64)
-    owned = cell_tags.indices < n
-    tags[cell_tags.indices[owned]] = cell_tags.values[owned]
-    return tags
+    return _owned_cell_tags(mesh, cell_tags, UNTAGGED)
 
 
 def _normalised(comm, directions: np.ndarray, what: str) -> np.ndarray:
@@ -142,7 +133,7 @@ def uniform(mesh: Mesh, direction: Sequence[float]) -> fem.Function:
     norm = np.linalg.norm(d)
     if not (np.isfinite(norm) and norm > 0.0):
         raise OrientationError(f"uniform: the direction must be finite and non-zero, got {d.tolist()}")
-    return cell_function(mesh, np.tile(d / norm, (_num_owned_cells(mesh), 1)), name="orientation")
+    return cell_function(mesh, np.tile(d / norm, (num_owned_cells(mesh), 1)), name="orientation")
 
 
 def per_tag(mesh: Mesh, cell_tags: MeshTagsMetaClass, directions: Mapping[int, Sequence[float]],
@@ -190,7 +181,7 @@ def from_callable(mesh: Mesh, f: Callable[[np.ndarray], np.ndarray]) -> fem.Func
 
     """
     tdim = mesh.topology.dim
-    midpoints = compute_midpoints(mesh, tdim, np.arange(_num_owned_cells(mesh), dtype=np.int32))
+    midpoints = compute_midpoints(mesh, tdim, np.arange(num_owned_cells(mesh), dtype=np.int32))
     directions = np.asarray(f(midpoints), dtype=float)
     if directions.shape != midpoints.shape:
         raise OrientationError(f"from_callable: f must map points of shape {midpoints.shape} to directions of "

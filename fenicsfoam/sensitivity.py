@@ -90,6 +90,10 @@ class Adjoint:
     def __init__(self, problem, prefix: str = "adjoint_"):
         if not prefix or not prefix.endswith("_"):
             raise InputError(f"the options prefix must be non-empty and end with '_', got {prefix!r}")
+        if not problem.model.exact_tangent:
+            raise InputError(f"adjoint sensitivities need the exact tangent; the {problem.model.name!r} model's "
+                             "tangent is approximate (the rotation held fixed): use 'corotational', 'bonet_burton', "
+                             "'svk' or 'linear' to differentiate this problem")
         self.problem = problem
         self._load_forms: dict[str, Any] = {}
         self._one = None

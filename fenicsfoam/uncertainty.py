@@ -21,14 +21,17 @@ What the number means: the scatter of the prediction over foam realisations of t
 standard deviation itself is uncertain by about ±50 % (a χ² estimate with 2 degrees of freedom). Between table
 nodes a per-seed table is interpolated as the mean table is (``foam_material``). A seed whose run does not
 converge is recorded with its error (and logged) and the steps it completed; a step's standard deviation is over
-the seeds that reached it, NaN with fewer than two. A vector probe (``"KIND:GROUP"``, e.g. a reaction force) gets
+the seeds that reached it, NaN with fewer than two. Every per-seed scene is made and checked
+(:func:`fenicsfoam.scene.vary_scene`, every foam region's ``table`` replaced) before the nominal run, so a scene
+that cannot take the per-seed tables (e.g. graded foam fields, which read the default table only) is refused
+(:class:`UncertaintyError`) before any work. A vector probe (``"KIND:GROUP"``, e.g. a reaction force) gets
 the standard deviation of each of its components, a list of 3 like its value.
 """
 
 from __future__ import annotations
 
-import copy
 import csv
+import dataclasses
 import json
 import logging
 import math
@@ -41,13 +44,21 @@ from typing import Any
 
 import numpy as np
 
-from foambase.files import write_json_atomic
+from fenicsfoam.material import tabulated_regions
+from foambase.errors import InputError
+from foambase.files import write_json_atomic, write_text_atomic
 
-__all__ = ["METHOD", "UncertaintyResult", "run_with_uncertainty", "seed_tables"]
+__all__ = ["METHOD", "UncertaintyError", "UncertaintyResult", "run_with_uncertainty", "seed_tables"]
 
 Value = float | list[float]
 
 logger = logging.getLogger(__name__)
+
+
+
+class UncertaintyError(InputError):
+    """A request for the prediction uncertainty that cannot be met, found before any run (samples, scene)."""
+
 
 METHOD = ("per-seed tables: the scene run once per seed of the foam table's samples, probes_std = sample "
           "standard deviation (ddof = 1) over the seeds")
@@ -64,7 +75,7 @@ def seed_tables(samples_csv: str | os.PathLike, out_dir: str | os.PathLike) -> d
     with open(samples_csv, newline="") as f:
         rows = list(csv.DictReader(f))
     if not rows:
-        raise ValueError(f"{samples_csv}: no samples")
+        raise UncertaintyError(f"{samples_csv}: no samples")
     nodes = {(float(r["density"]), float(r["gamma"])) for r in rows}
     by_seed: dict[int, list[dict]] = {}
     for r in rows:
@@ -73,29 +84,10 @@ def seed_tables(samples_csv: str | os.PathLike, out_dir: str | os.PathLike) -> d
     for seed, members in sorted(by_seed.items()):
         missing = nodes - {(float(r["density"]), float(r["gamma"])) for r in members}
         if missing:
-            raise ValueError(f"{samples_csv}: seed {seed} has no sample at (density, gamma) = {sorted(missing)[0]}; "
-                             "every seed must cover every table node")
+            raise UncertaintyError(f"{samples_csv}: seed {seed} has no sample at (density, gamma) = "
+                                   f"{sorted(missing)[0]}; every seed must cover every table node")
         paths[seed] = to_csv(aggregate(members), Path(out_dir) / f"foam_table_seed{seed}.csv")
     return paths
-
-
-def _explicit_regions(scene, table: Path) -> dict[str, dict[str, Any]]:
-    """The scene's regions with every foam replaced by its explicit constants from ``table``."""
-    from fenicsfoam.materials import Isotropic, foam_material
-
-    regions = copy.deepcopy(dict(scene.raw["regions"]))
-    for region in scene.regions:
-        if region.material != "foam":
-            continue
-        p = dict(region.parameters)
-        p.pop("table", None)          # the per-seed table replaces the region's own
-        m = foam_material(p.pop("density"), p.pop("gamma"), p.pop("E_solid"), p.pop("nu_solid"), table=table, **p)
-        if isinstance(m, Isotropic):
-            constants = {"material": "isotropic", "E": m.E, "nu": m.nu, "rho": m.rho}
-        else:
-            constants = {"material": "transverse_isotropic", **m.constants, "rho": m.rho}
-        regions[region.name] = {"tags": regions[region.name]["tags"], **constants}
-    return regions
 
 
 def _flatten(probes: dict[str, Value], names) -> list[float]:
@@ -131,9 +123,9 @@ def _default_samples(scene) -> Path:
     """The samples CSV of the one shipped table every foam region of ``scene`` uses."""
     from homogenization.tables import table_paths
 
-    names = {r.parameters.get("table", "cube") for r in scene.regions if r.material == "foam"}
+    names = {r.parameters.get("table", "cube") for r in tabulated_regions(scene.regions)}
     if len(names) != 1 or next(iter(names)).endswith(".csv"):
-        raise ValueError(f"the scene's foam regions use the tables {sorted(names)}: pass the samples CSV their "
+        raise UncertaintyError(f"the scene's foam regions use the tables {sorted(names)}: pass the samples CSV their "
                          "mean table was aggregated from (samples_csv, --samples)")
     return table_paths(names.pop())["samples"]
 
@@ -194,7 +186,7 @@ class UncertaintyResult:
 
 
 def run_with_uncertainty(source, out_dir: str | os.PathLike | None = None, *,
-                         samples_csv: str | os.PathLike | None = None, comm=None) -> UncertaintyResult:
+                         samples_csv: str | os.PathLike | None = None, comm=None, **options) -> UncertaintyResult:
     """Run a scene with the mean foam table and once per seed; ``probes_std`` per step (see the module docstring).
 
     Parameters
@@ -210,76 +202,101 @@ def run_with_uncertainty(source, out_dir: str | os.PathLike | None = None, *,
         samples that table was aggregated from.
     comm
         MPI communicator (default ``MPI.COMM_WORLD``).
+    options
+        For the nominal run (:func:`~fenicsfoam.scene.run_scene`'s ``solver``, ``force``, ``echo``).
 
     Raises
     ------
     SceneError
         Invalid scene; ``ConvergenceError`` if the nominal run fails (a seed's failure is recorded instead).
+    UncertaintyError
+        Before any run: samples that give no per-seed tables, a scene whose foam regions cannot read them (graded
+        fields; a table node outside a seed's table), foam regions of several tables without ``samples_csv``.
 
     """
     from mpi4py import MPI
 
-    from fenicsfoam.scene import Scene, load_scene, parse_scene, run_scene
+    from fenicsfoam.scene import Scene, load_scene, run_scene
     from fenicsfoam.solver import ConvergenceError
 
     comm = MPI.COMM_WORLD if comm is None else comm
     scene = source if isinstance(source, Scene) else load_scene(source)
-    nominal = run_scene(scene, out_dir, comm=comm)
-    labels = [s.label for s in nominal.steps]
-    result = UncertaintyResult(nominal)
     sizes = _sizes(scene.probes)
     width = sum(sizes.values())
-    if not any(r.material == "foam" for r in scene.regions):
-        result.method = "no foam region: no table scatter to propagate"
-        result.probes_std = [_unflatten(np.zeros(width), scene.probes, sizes) for _ in nominal.steps]
-    else:
+    foams = bool(tabulated_regions(scene.regions))
+    tmp = comm.bcast(tempfile.mkdtemp(prefix="fenicsfoam-seeds-") if comm.rank == 0 and foams else None, root=0)
+    try:
+        seeds = _seed_scenes(scene, samples_csv, tmp, comm) if foams else {}  # every variation, before any work
+        nominal = run_scene(scene, out_dir, comm=comm, **options)
+        labels = [s.label for s in nominal.steps]
+        result = UncertaintyResult(nominal)
+        if not foams:
+            result.method = "no foam region: no table scatter to propagate"
+            result.probes_std = [_unflatten(np.zeros(width), scene.probes, sizes) for _ in nominal.steps]
         values: dict[str, list[list[float]]] = {label: [] for label in labels}
-        tmp = comm.bcast(tempfile.mkdtemp(prefix="fenicsfoam-seeds-") if comm.rank == 0 else None, root=0)
-        try:
-            tables = None
-            if comm.rank == 0:
-                try:
-                    tables = seed_tables(_default_samples(scene) if samples_csv is None else samples_csv, tmp)
-                except (OSError, ValueError) as exc:  # raised on every rank below
-                    tables = exc
-            tables = comm.bcast(tables, root=0)
-            if isinstance(tables, Exception):
-                raise tables
-            for seed, table in tables.items():
-                data = copy.deepcopy(dict(scene.raw))
-                data["regions"] = _explicit_regions(scene, table)
-                data["outputs"] = {"xdmf": False, "png": False}
-                seed_out = Path(tmp) / f"seed{seed}"
-                sample: dict[str, Any] = {"seed": seed}
-                try:
-                    run = run_scene(parse_scene(_resolved_geometry(data, scene)), seed_out, comm=comm)
-                    sample["steps"] = {s.label: s.probes for s in run.steps}
-                except ConvergenceError as exc:  # the steps done before the failure still count
-                    logger.warning("scene %s with foam seed %d did not converge: %s", scene.name, seed, exc)
-                    done = (json.loads((seed_out / "summary.json").read_text())["steps"] if comm.rank == 0
-                            else None)
-                    sample["steps"] = {s["label"]: s["probes"] for s in comm.bcast(done, root=0)}
-                    sample["error"] = str(exc)
-                result.samples.append(sample)
-                for label, probes in sample["steps"].items():
-                    if label in values:
-                        values[label].append(_flatten(probes, scene.probes))
-        finally:
-            comm.Barrier()
-            if comm.rank == 0:
-                shutil.rmtree(tmp, ignore_errors=True)
+        for seed, seed_scene in seeds.items():
+            seed_out = Path(tmp) / f"seed{seed}"
+            sample: dict[str, Any] = {"seed": seed}
+            try:
+                run = run_scene(seed_scene, seed_out, comm=comm)
+                sample["steps"] = {s.label: s.probes for s in run.steps}
+            except ConvergenceError as exc:  # the steps done before the failure still count
+                logger.warning("scene %s with foam seed %d did not converge: %s", scene.name, seed, exc)
+                done = (json.loads((seed_out / "summary.json").read_text())["steps"] if comm.rank == 0
+                        else None)
+                sample["steps"] = {s["label"]: s["probes"] for s in comm.bcast(done, root=0)}
+                sample["error"] = str(exc)
+            result.samples.append(sample)
+            for label, probes in sample["steps"].items():
+                if label in values:
+                    values[label].append(_flatten(probes, scene.probes))
+    finally:
+        comm.Barrier()
+        if comm.rank == 0 and tmp is not None:
+            shutil.rmtree(tmp, ignore_errors=True)
+    if foams:
         for label in labels:
             rows = np.array(values[label], dtype=float).reshape(-1, width)
             std = rows.std(axis=0, ddof=1) if len(rows) > 1 else np.full(width, math.nan)
             result.probes_std.append(_unflatten(std, scene.probes, sizes))
     if out_dir is not None and comm.rank == 0:
+        from fenicsfoam.scene.outputs import probes_csv
+        write_text_atomic(Path(out_dir) / "probes.csv", probes_csv(nominal, result.probes_std))
         write_json_atomic(Path(out_dir) / "summary.json", result.summary())
     comm.Barrier()
     return result
 
 
-def _resolved_geometry(data: dict[str, Any], scene) -> dict[str, Any]:
-    """A mesh file path made absolute (the per-seed scene is parsed without the scene file's directory)."""
-    if scene.builder == "file":
-        data["geometry"] = {"builder": "file", "path": str(scene.geometry["path"])}
-    return data
+def _seed_scenes(scene, samples_csv, tmp: str, comm) -> dict[int, Any]:
+    """The scene once per seed of the samples: every foam region reads that seed's table (in ``tmp``), no outputs.
+
+    Every variation is checked (:func:`fenicsfoam.scene.vary_scene`) before any run: :class:`UncertaintyError`
+    for samples that cannot give per-seed tables or a scene whose foam regions cannot take them.
+    """
+    from fenicsfoam.scene import SceneError, vary_scene
+
+    if scene.graded:
+        raise UncertaintyError(f"scene {scene.name!r}: graded foam fields ([[blends]], or a density or gamma per tag "
+                               "or by a function) read the default foam table only, so the per-seed tables of "
+                               "--uncertainty cannot replace it; run it without --uncertainty, or give the foam "
+                               "regions numbers")
+    tables = None
+    if comm.rank == 0:
+        try:
+            tables = seed_tables(_default_samples(scene) if samples_csv is None else samples_csv, tmp)
+        except (OSError, ValueError) as exc:  # raised on every rank below
+            tables = exc
+    tables = comm.bcast(tables, root=0)
+    if isinstance(tables, OSError):
+        raise UncertaintyError(f"the per-seed tables cannot be made: {tables}") from tables
+    if isinstance(tables, Exception):
+        raise tables
+    quiet = {**scene.raw, "outputs": {"xdmf": False, "png": False}}
+    seeds = {}
+    for seed, table in tables.items():
+        try:
+            varied = vary_scene(scene, {"table": str(table)})
+        except SceneError as exc:
+            raise UncertaintyError(f"the foam table of seed {seed} does not fit scene {scene.name!r}: {exc}") from exc
+        seeds[seed] = dataclasses.replace(varied, raw={**quiet, "regions": varied.raw["regions"]}, xdmf=False, png=())
+    return seeds

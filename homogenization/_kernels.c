@@ -8,6 +8,7 @@
  */
 #include <stdint.h>
 #include <stdlib.h>
+#include <string.h>
 
 /* Voxels are processed in tiles: each tile's six components are copied to (or from) local buffers one
  * component at a time, so that memory is streamed component by component. Touching the six components of one
@@ -511,4 +512,183 @@ double ff_axpby(int64_t n, int ncomp, const double *alpha, const double *x, int6
         }
     }
     return total;
+}
+
+/* ---------------------------------------------------------------------------------------------------------------
+ * Fully integrated trilinear voxels (hex8, 2 x 2 x 2 Gauss points): K p = sum over voxels of Ke(phase) p_e with the
+ * 24 x 24 element matrices Ke (node n = 4 da + 2 db + dc of the voxel, dof 3 n + component; built in _nodal.py).
+ * --------------------------------------------------------------------------------------------------------------- */
+
+/* One voxel plane v (local; phase plane v + 1, padded node planes v + 1 and v + 2 of p): Ke p_e of every voxel whose
+ * phase is active, scattered to the voxel's lower node plane (lo, may be NULL) and upper node plane (up). If acc is
+ * not NULL, acc[0] += sum p_e.Ke p_e and acc[1..6] += the tensor stress of the centre strain (tables). */
+static void hex8_voxel_plane(int64_t v, int64_t n2, int64_t n3, const double *p, int64_t pstride,
+                             const int32_t *phase, const double *Ke, const int32_t *active, const double *tables,
+                             const double *h, double *lo, double *up, double *acc)
+{
+    const int64_t plane = n2 * n3;
+    const int32_t *ids = phase + (v + 1) * plane;
+    const double g0 = 0.25 / h[0], g1 = 0.25 / h[1], g2 = 0.25 / h[2];
+    static const double r2 = 0.70710678118654752440; /* 1/sqrt2 */
+    if (lo)
+        memset(lo, 0, 3 * plane * sizeof(double));
+    memset(up, 0, 3 * plane * sizeof(double));
+    double energy = 0.0, mean[6] = {0, 0, 0, 0, 0, 0};
+    for (int64_t j = 0; j < n2; ++j) {
+        const int64_t jj[2] = {j, (j + 1 == n2) ? 0 : j + 1};
+        for (int64_t k = 0; k < n3; ++k) {
+            const int32_t ph = ids[j * n3 + k];
+            if (!active[ph])
+                continue;
+            const int64_t kk[2] = {k, (k + 1 == n3) ? 0 : k + 1};
+            int64_t at[8];
+            double u[24], f[24];
+            for (int da = 0; da < 2; ++da)
+                for (int db = 0; db < 2; ++db)
+                    for (int dc = 0; dc < 2; ++dc) {
+                        const int n = 4 * da + 2 * db + dc;
+                        at[n] = jj[db] * n3 + kk[dc];
+                        const double *src = p + (v + 1 + da) * plane + at[n];
+                        u[3 * n] = src[0];
+                        u[3 * n + 1] = src[pstride];
+                        u[3 * n + 2] = src[2 * pstride];
+                    }
+            const double *A = Ke + 576 * (int64_t)ph;
+            for (int r = 0; r < 24; ++r) {
+                double s = 0.0;
+#pragma omp simd reduction(+ : s)
+                for (int c = 0; c < 24; ++c)
+                    s += A[24 * r + c] * u[c];
+                f[r] = s;
+            }
+            for (int n = 0; n < 8; ++n) {
+                double *dst = (n < 4) ? lo : up;
+                if (!dst)
+                    continue;
+                dst[at[n]] += f[3 * n];
+                dst[plane + at[n]] += f[3 * n + 1];
+                dst[2 * plane + at[n]] += f[3 * n + 2];
+            }
+            if (acc) {
+                double e = 0.0;
+                for (int r = 0; r < 24; ++r)
+                    e += u[r] * f[r];
+                energy += e;
+                /* centre gradient: G[c][d] = sum_n u_c(n) s_d(n) / (4 h_d) */
+                double G[3][3];
+                for (int c = 0; c < 3; ++c) {
+                    double x0 = 0.0, x1 = 0.0, x2 = 0.0;
+                    for (int n = 0; n < 8; ++n) {
+                        const double val = u[3 * n + c];
+                        x0 += (n & 4) ? val : -val;
+                        x1 += (n & 2) ? val : -val;
+                        x2 += (n & 1) ? val : -val;
+                    }
+                    G[c][0] = g0 * x0;
+                    G[c][1] = g1 * x1;
+                    G[c][2] = g2 * x2;
+                }
+                const double em[6] = {G[0][0], G[1][1], G[2][2], r2 * (G[1][2] + G[2][1]), r2 * (G[0][2] + G[2][0]),
+                                      r2 * (G[0][1] + G[1][0])};
+                const double *T = tables + 36 * (int64_t)ph;
+                for (int a = 0; a < 6; ++a)
+                    mean[a] += T[6 * a] * em[0] + T[6 * a + 1] * em[1] + T[6 * a + 2] * em[2] + T[6 * a + 3] * em[3]
+                               + T[6 * a + 4] * em[4] + T[6 * a + 5] * em[5];
+            }
+        }
+    }
+    if (acc) {
+        acc[0] += energy;
+        for (int a = 0; a < 6; ++a)
+            acc[1 + a] += mean[a];
+    }
+}
+
+/* q = K p on node planes [a, b) (local; q unpadded), K the hex8 stiffness. sums[0] += p.Kp over voxel planes [a, b),
+ * sums[1..6] += the tensor stress of the voxel-centre strain B0 p (the Gauss-point mean) over the same voxels. */
+void ff_hex8_apply(int64_t n2, int64_t n3, int64_t a, int64_t b, const double *p, int64_t pstride,
+                   const int32_t *phase, const double *Ke, const int32_t *active, const double *tables,
+                   const double *h, double *q, int64_t qstride, double *sums)
+{
+    const int64_t plane = n2 * n3;
+    double *up = malloc(3 * plane * sizeof(double));
+    double *up2 = malloc(3 * plane * sizeof(double));
+    double *lo = malloc(3 * plane * sizeof(double));
+    double acc[7] = {0, 0, 0, 0, 0, 0, 0};
+    hex8_voxel_plane(a - 1, n2, n3, p, pstride, phase, Ke, active, tables, h, NULL, up, NULL);
+    for (int64_t l = a; l < b; ++l) {
+        hex8_voxel_plane(l, n2, n3, p, pstride, phase, Ke, active, tables, h, lo, up2, acc);
+        for (int c = 0; c < 3; ++c) {
+            double *out = q + c * qstride + l * plane;
+            const double *x = up + c * plane, *y = lo + c * plane;
+#pragma omp simd
+            for (int64_t i = 0; i < plane; ++i)
+                out[i] = x[i] + y[i];
+        }
+        double *t = up;
+        up = up2;
+        up2 = t;
+    }
+    for (int c = 0; c < 7; ++c)
+        sums[c] += acc[c];
+    free(up);
+    free(up2);
+    free(lo);
+}
+
+/* Green operator of the hex8 discretization for the Mandel identity as material, in place on the spectrum of a
+ * 3-component nodal field: hat <- scale M(xi)^-1 hat, M = (tr A I + A) / 2 with A_cc = K_c^2 W_d W_f,
+ * A_cd = K_c C_c K_d C_d W_f ({c, d, f} = {0, 1, 2}), per-axis tables K = (2/h) sin(pi m/N), C = cos(pi m/N),
+ * W = C^2 + sin^2(pi m/N)/3; zero where tr A <= kmin (xi = 0). Returns sum w conj(r).z as ff_hex_green. */
+double ff_hex8_green(int64_t ni, int64_t n2, int64_t h3, double *hat, int64_t stride, const double *K0,
+                     const double *C0, const double *W0, const double *K1, const double *C1, const double *W1,
+                     const double *K2, const double *C2, const double *W2, double kmin, double scale, int nyquist,
+                     int64_t k_lo, int64_t h_global)
+{
+    double total = 0.0, single = 0.0;
+    for (int64_t i = 0; i < ni; ++i)
+        for (int64_t j = 0; j < n2; ++j) {
+            double *x = hat + 2 * ((i * n2 + j) * h3), *y = x + stride, *z = y + stride;
+            const double a0 = K0[i], c0 = C0[i], w0 = W0[i], a1 = K1[j], c1 = C1[j], w1 = W1[j];
+            double line = 0.0, once = 0.0;
+            for (int64_t k = 0; k < h3; ++k) {
+                const double a2 = K2[k], c2 = C2[k], w2 = W2[k];
+                const double A00 = a0 * a0 * w1 * w2, A11 = a1 * a1 * w0 * w2, A22 = a2 * a2 * w0 * w1;
+                const double tr = A00 + A11 + A22;
+                double m00 = 0, m11 = 0, m22 = 0, m01 = 0, m02 = 0, m12 = 0;
+                if (tr > kmin) {
+                    const double d = 0.5 * tr;
+                    const double M00 = d + 0.5 * A00, M11 = d + 0.5 * A11, M22 = d + 0.5 * A22;
+                    const double M01 = 0.5 * a0 * c0 * a1 * c1 * w2, M02 = 0.5 * a0 * c0 * a2 * c2 * w1,
+                                 M12 = 0.5 * a1 * c1 * a2 * c2 * w0;
+                    const double i00 = M11 * M22 - M12 * M12, i01 = M02 * M12 - M01 * M22,
+                                 i02 = M01 * M12 - M02 * M11, i11 = M00 * M22 - M02 * M02,
+                                 i12 = M01 * M02 - M00 * M12, i22 = M00 * M11 - M01 * M01;
+                    const double s = scale / (M00 * i00 + M01 * i01 + M02 * i02);
+                    m00 = s * i00;
+                    m11 = s * i11;
+                    m22 = s * i22;
+                    m01 = s * i01;
+                    m02 = s * i02;
+                    m12 = s * i12;
+                }
+                double rz = 0.0;
+                for (int part = 0; part < 2; ++part) {
+                    const double r0 = x[2 * k + part], r1 = y[2 * k + part], r2 = z[2 * k + part];
+                    const double z0 = m00 * r0 + m01 * r1 + m02 * r2, z1 = m01 * r0 + m11 * r1 + m12 * r2,
+                                 z2 = m02 * r0 + m12 * r1 + m22 * r2;
+                    rz += r0 * z0 + r1 * z1 + r2 * z2;
+                    x[2 * k + part] = z0;
+                    y[2 * k + part] = z1;
+                    z[2 * k + part] = z2;
+                }
+                line += rz;
+                const int64_t g = k + k_lo;
+                if (g == 0 || (nyquist && h_global > 1 && g == h_global - 1))
+                    once += rz;
+            }
+            total += line;
+            single += once;
+        }
+    return 2.0 * total - single;
 }

@@ -408,3 +408,196 @@ def solve_pcg(ws: NodalWorkspace, E: np.ndarray, tol: float, maxiter: int, repor
         ws.axpby(1.0, ws.q, rz_new / rz, ws.p, y_ghost=1)  # p ← z + β p
         rz = rz_new
     return mean, history, False, f"CG did not reach tol in maxiter = {maxiter} iterations"
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Fully integrated trilinear voxels (discretization="hex8")
+# --------------------------------------------------------------------------------------------------------------
+GAUSS = (0.5 - 0.5 / np.sqrt(3.0), 0.5 + 0.5 / np.sqrt(3.0))  #: 2-point Gauss abscissae on [0, 1]
+
+
+def hex8_gradients(h: np.ndarray, points=None) -> np.ndarray:
+    """Mandel strain matrices ``B_g`` (6×24) of a trilinear voxel of sizes ``h`` at the points ``g`` (default the
+    2×2×2 Gauss points), local coordinates in ``[0, 1]³``; node ``n = 4 da + 2 db + dc`` at ``(da, db, dc)``, dof
+    ``3 n + c``. ``points=[(0.5, 0.5, 0.5)]`` gives the one-point (rotated) gradient."""
+    if points is None:
+        points = [(a, b, c) for a in GAUSS for b in GAUSS for c in GAUSS]
+    out = []
+    for t in points:
+        B = np.zeros((6, 24))
+        for n in range(8):
+            corner = ((n >> 2) & 1, (n >> 1) & 1, n & 1)
+            w = [t[d] if corner[d] else 1.0 - t[d] for d in range(3)]
+            dN = [(1.0 if corner[d] else -1.0) / h[d] * np.prod([w[e] for e in range(3) if e != d])
+                  for d in range(3)]
+            for I, (c, d) in enumerate(_PAIRS):
+                if c == d:
+                    B[I, 3 * n + c] += dN[c]
+                else:  # Mandel shear: (∂_d u_c + ∂_c u_d)/√2
+                    B[I, 3 * n + c] += dN[d] / _SQRT2
+                    B[I, 3 * n + d] += dN[c] / _SQRT2
+        out.append(B)
+    return np.array(out)
+
+
+def hex8_element_matrices(tables: np.ndarray, h: np.ndarray, points=None) -> np.ndarray:
+    """Element stiffnesses ``Ke[p] = mean_g B_gᵀ C_p B_g`` (24×24) of every phase, normalised like the rotated
+    stencil (``K = Σ_voxels Ke``: no voxel-volume factor); ``C_p`` the Mandel stiffness behind ``tables[p]``."""
+    B = hex8_gradients(h, points)
+    Ke = np.empty((len(tables), 24, 24))
+    for p, T in enumerate(tables):
+        C = T * MANDEL[:, None]  # tables hold Mandel strain → tensor stress; back to Mandel stress
+        Ke[p] = np.mean([Bg.T @ C @ Bg for Bg in B], axis=0)
+        Ke[p] = 0.5 * (Ke[p] + Ke[p].T)
+    return Ke
+
+
+def hex8_weight_table(n: int, h: float, indices: np.ndarray) -> np.ndarray:
+    """``W = cos²(π m/n) + sin²(π m/n)/3`` per FFT index: the Gauss-point mean of ``|C + i σ S/√3|²``."""
+    K, C = rotated_tables(n, h, indices)
+    S = K * h / 2.0
+    return np.ascontiguousarray(C * C + S * S / 3.0)
+
+
+class Hex8Workspace(NodalWorkspace):
+    """:class:`NodalWorkspace` of the fully integrated trilinear voxels (``discretization="hex8"``).
+
+    ``K = Σ_voxels Ke(phase)`` with the 2×2×2-Gauss element matrices (:func:`hex8_element_matrices`), applied
+    voxel plane by voxel plane (``ff_hex8_apply``); the preconditioner is ``K_I⁻¹``, ``K_I`` the same
+    discretization with the Mandel identity as material, a real symmetric 3×3 matrix per wave vector
+    (``M = (tr A I + A)/2``, ``A_cd = K_c C_c K_d C_d W_f``, ``A_cc = K_c² W_d W_f``: the rotated scheme's
+    ``C_l²`` replaced by the Gauss mean ``W_l = C_l² + S_l²/3 ≥ 1/3``), positive definite at every ``ξ ≠ 0``: no
+    hourglass modes. The load ``Bᵀ C E`` and the mean stress ``⟨C (E + B u)⟩`` involve only the Gauss-point mean
+    of the strain, which is the voxel-centre (one-point) strain: they are the rotated kernel's.
+    """
+
+    def __init__(self, phases, tables, shape, box, threads, keep, comm=None, i0=0):
+        super().__init__(phases, tables, shape, box, threads, keep, comm=comm, i0=i0)
+        self.Ke = np.ascontiguousarray(hex8_element_matrices(self.tables, self.h))
+        self.active = np.array([np.any(T) for T in self.tables], dtype=np.int32)
+        N1, N2, N3 = self.shape
+        self.W0 = hex8_weight_table(N1, self.h[0], np.arange(self.spec[0].start, self.spec[0].stop))
+        self.W1 = hex8_weight_table(N2, self.h[1], np.arange(self.spec[1].start, self.spec[1].stop))
+        self.W2 = hex8_weight_table(N3, self.h[2], np.arange(self.spec[2].start, self.spec[2].stop))
+
+    @property
+    def nbytes(self) -> int:
+        return super().nbytes + int(self.Ke.nbytes)
+
+    def apply(self, with_p: bool, E: np.ndarray | None) -> tuple[float, np.ndarray]:
+        """``q ← K p`` (``with_p``, ``E`` None) or ``q ← Bᵀ C E`` (load; the rotated kernel, see the class)."""
+        if not with_p or E is not None:
+            if with_p:
+                raise ValueError("Hex8Workspace.apply: K p and the load are separate calls")
+            return super().apply(False, E)
+        N2, N3 = self.shape[1], self.shape[2]
+        if self.native is not None:
+            ffi, lib = self.native
+            ptr = lambda a, t="double *": ffi.cast(t, a.ctypes.data)  # noqa: E731
+
+            def kernel(a, b):
+                sums = np.zeros(7)
+                lib.ff_hex8_apply(N2, N3, a, b, ptr(self.p), self.p[0].size, ptr(self.phase, "int32_t *"),
+                                  ptr(self.Ke), ptr(self.active, "int32_t *"), ptr(self.tables), ptr(self.h),
+                                  ptr(self.q), self.q[0].size, ptr(sums))
+                return sums
+        else:
+            def kernel(a, b):
+                return _hex8_apply_numpy(self, a, b)
+        sums = self._run(kernel, self.ranges)
+        return float(sums[0]), sums[1:]
+
+    def precondition(self) -> float:
+        """``q ← K_I⁻¹ r`` by FFT (hex8 ``K_I``); returns ``rᵀ K_I⁻¹ r`` (this rank's share of the spectrum)."""
+        t0 = time.perf_counter()
+        if self.pfft is None:
+            self._forward.execute()
+        else:
+            for c in range(3):
+                self.pfft.forward(self.r[c], self.hat[c], normalize=False)
+        self.fft_s += time.perf_counter() - t0
+        self.fft_calls += 1
+        _, N2loc, Hloc = self.hat.shape[1:]
+        H = self.shape[2] // 2 + 1
+        k_lo = self.spec[2].start
+        nyquist = self.shape[2] % 2 == 0 and H > 1
+        scale = 1.0 / self.size
+        if self.native is not None:
+            ffi, lib = self.native
+            ptr = lambda a: ffi.cast("double *", a.ctypes.data)  # noqa: E731
+            stride = 2 * self.hat[0].size
+
+            def kernel(a, b):
+                return lib.ff_hex8_green(b - a, N2loc, Hloc,
+                                         ffi.cast("double *", self.hat.ctypes.data) + 2 * a * N2loc * Hloc, stride,
+                                         ptr(self.K0) + a, ptr(self.C0) + a, ptr(self.W0) + a, ptr(self.K1),
+                                         ptr(self.C1), ptr(self.W1), ptr(self.K2), ptr(self.C2), ptr(self.W2),
+                                         self.kmin, scale, nyquist, k_lo, H)
+        else:
+            def kernel(a, b):
+                return _hex8_green_numpy(self, a, b, scale, nyquist, k_lo, H)
+        rz = float(self._run(kernel, self.spec_ranges)[0])
+        t0 = time.perf_counter()
+        if self.pfft is None:
+            self._backward.execute()
+        else:
+            for c in range(3):
+                self.pfft.backward(self.hat[c], self.q[c])
+        self.fft_s += time.perf_counter() - t0
+        self.fft_calls += 1
+        return rz
+
+
+def _hex8_apply_numpy(ws: Hex8Workspace, a: int, b: int) -> np.ndarray:
+    """``ff_hex8_apply`` in numpy: gather the 8 nodes of voxel planes ``a − 1 … b − 1``, ``Ke u``, scatter."""
+    m = b - a + 1
+    P = ws.p[:, a:b + 2]  # node planes a − 1 … b
+    U = np.empty((24, m) + P.shape[2:])
+    for n in range(8):
+        da, db, dc = (n >> 2) & 1, (n >> 1) & 1, n & 1
+        U[3 * n:3 * n + 3] = np.roll(P[:, da:da + m], (-db, -dc), axis=(2, 3))
+    ids = ws.phase[a:b + 1]
+    F = np.zeros_like(U)
+    for ph in np.unique(ids):
+        if ws.active[ph]:
+            F += np.einsum("rc,c...->r...", ws.Ke[ph], U) * (ids == ph)
+    sums = np.zeros(7)
+    sums[0] = float(np.sum(U[:, 1:] * F[:, 1:]))
+    _, tau = _voxel_fields(ws, ws.p, a, b, None)
+    sums[1:] = tau[:, 1:].sum(axis=(1, 2, 3))
+    out = np.zeros((3, b - a) + P.shape[2:])
+    for n in range(8):
+        da, db, dc = (n >> 2) & 1, (n >> 1) & 1, n & 1
+        part = F[3 * n:3 * n + 3, :-1] if da else F[3 * n:3 * n + 3, 1:]  # voxel plane l − 1 (upper) or l (lower)
+        out += np.roll(part, (db, dc), axis=(2, 3))
+    ws.q[:, a:b] = out
+    return sums
+
+
+def _hex8_green_numpy(ws: Hex8Workspace, a: int, b: int, scale: float, nyquist: bool, k_lo: int, H: int) -> float:
+    K = [ws.K0[a:b, None, None], ws.K1[None, :, None], ws.K2[None, None, :]]
+    C = [ws.C0[a:b, None, None], ws.C1[None, :, None], ws.C2[None, None, :]]
+    W = [ws.W0[a:b, None, None], ws.W1[None, :, None], ws.W2[None, None, :]]
+    shape = np.broadcast_shapes(*(k.shape for k in K))
+    A = {}
+    for c in range(3):
+        d, f = [e for e in range(3) if e != c]
+        A[c, c] = np.broadcast_to(K[c] ** 2 * W[d] * W[f], shape)
+    for c, d in ((0, 1), (0, 2), (1, 2)):
+        A[c, d] = np.broadcast_to(K[c] * C[c] * K[d] * C[d] * W[3 - c - d], shape)
+    tr = A[0, 0] + A[1, 1] + A[2, 2]
+    zero = tr <= ws.kmin
+    M = {key: 0.5 * value + (0.5 * tr if key[0] == key[1] else 0.0) for key, value in A.items()}
+    M[0, 0], M[1, 1], M[2, 2] = (np.where(zero, 1.0, M[c, c]) for c in range(3))
+    adj = {(0, 0): M[1, 1] * M[2, 2] - M[1, 2] ** 2, (0, 1): M[0, 2] * M[1, 2] - M[0, 1] * M[2, 2],
+           (0, 2): M[0, 1] * M[1, 2] - M[0, 2] * M[1, 1], (1, 1): M[0, 0] * M[2, 2] - M[0, 2] ** 2,
+           (1, 2): M[0, 1] * M[0, 2] - M[0, 0] * M[1, 2], (2, 2): M[0, 0] * M[1, 1] - M[0, 1] ** 2}
+    s = np.where(zero, 0.0, scale / (M[0, 0] * adj[0, 0] + M[0, 1] * adj[0, 1] + M[0, 2] * adj[0, 2]))
+    inv = lambda c, d: s * adj[min(c, d), max(c, d)]  # noqa: E731
+    r = ws.hat[:, a:b]
+    z = np.stack([inv(c, 0) * r[0] + inv(c, 1) * r[1] + inv(c, 2) * r[2] for c in range(3)])
+    index = k_lo + np.arange(shape[-1])
+    w = np.where((index == 0) | (nyquist & (index == H - 1)), 1.0, 2.0)
+    total = float(np.sum(w * np.real(np.conj(r) * z).sum(axis=0)))
+    r[...] = z
+    return total

@@ -10,10 +10,10 @@ constants and fits are printed. It is written to a temporary file beside ``--out
 half-written; ``--stl`` also writes the foam's surface. Defaults: ``--tol 1e-4`` (tighter tolerances move the
 constants by less than the resolution error), ``--threads 1`` (considerate on a shared machine; more threads than
 CPUs is a warning). Every argument and output location is checked before any work, naming the argument.
-``--scheme`` defaults to ``pcg`` with the rotated discretization and ``cg`` with the spectral one.
+``--scheme`` defaults to ``pcg`` with the rotated and hex8 discretizations and ``cg`` with the spectral one.
 
 Under ``mpirun -n K`` (K > 1) ``homogenize`` distributes the one RVE over the K ranks
-(``homogenize_fft(..., comm=MPI.COMM_WORLD)``, slabs of planes along x, ``pcg`` with the rotated discretization
+(``homogenize_fft(..., comm=MPI.COMM_WORLD)``, slabs of planes along x, ``pcg`` with the rotated or hex8 discretization
 only): rank 0 checks the arguments and outputs, voxelizes the foam (its memory peak holds the whole ``N³`` image,
 one byte per voxel) and sends each rank its planes; an ``--image`` is memory-mapped and every rank reads only its
 own planes. Rank 0 prints and writes the JSON (and the STL). ``--threads`` is per rank.
@@ -115,9 +115,11 @@ def _homogenize_arguments(p: argparse.ArgumentParser) -> None:
     mat.add_argument("--nu-solid", dest="nu_solid", type=float, default=0.3, help="Poisson's ratio of the solid")
     sol = p.add_argument_group("solver")
     sol.add_argument("--scheme", choices=SCHEMES, default=None,
-                     help="default: pcg with the rotated discretization, cg with the spectral one; under mpirun "
-                          "with more than one rank only pcg (rotated)")
-    sol.add_argument("--discretization", choices=DISCRETIZATIONS, default="rotated")
+                     help="default: pcg with the rotated and hex8 discretizations, cg with the spectral one; under "
+                          "mpirun with more than one rank only pcg (rotated or hex8)")
+    sol.add_argument("--discretization", choices=DISCRETIZATIONS, default="rotated",
+                     help="rotated: one-point trilinear voxels (moduli from below); hex8: fully integrated trilinear "
+                          "voxels (from above, fewer iterations on void foams); spectral: Moulinec-Suquet")
     sol.add_argument("--tol", type=float, default=HOMOGENIZE_TOL,
                      help="relative equilibrium residual ||G[σ]||/||G[C:E]||")
     sol.add_argument("--maxiter", type=int, default=None, help="iterations per load case (default: solver's)")
@@ -223,9 +225,9 @@ def _homogenize_check(parser: argparse.ArgumentParser, args: argparse.Namespace)
     need(args.threads >= 1, f"--threads must be >= 1, got {args.threads}")
     args.comm = comm = _world()
     if comm is not None:
-        need(args.scheme in (None, "pcg") and args.discretization == "rotated",
+        need(args.scheme in (None, "pcg") and args.discretization in ("rotated", "hex8"),
              f"under mpirun with {comm.size} ranks homogenize distributes one RVE, which runs --scheme pcg with "
-             f"--discretization rotated only; got --scheme {args.scheme} --discretization {args.discretization}")
+             f"--discretization rotated or hex8 only; got --scheme {args.scheme} --discretization {args.discretization}")
     if comm is None or comm.rank == 0:
         _warn_threads(args.threads)  # per rank: under mpirun a rank's CPUs are those it is bound to
 
@@ -409,6 +411,9 @@ def _table_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tol", type=float, default=tables.SweepSettings.tol, help="FFT (CG) tolerance")
     _foam_kind_arguments(p)
     p.add_argument("--maxiter", type=int, default=None, help="CG iterations per load case (default: solver's)")
+    p.add_argument("--discretization", choices=tables.SWEEP_DISCRETIZATIONS, default="rotated",
+                   help="voxels: rotated (one-point, the shipped tables) or hex8 (fully integrated); a hex8 table's "
+                        "name ends in _hex8")
     p.add_argument("--threads", type=int, default=None,
                    help="FFTW threads per rank; None: CPUs / ranks (more than the CPUs: a warning)")
 
@@ -437,7 +442,8 @@ def _table_check(parser: argparse.ArgumentParser, args: argparse.Namespace) -> N
         parser.error(f"--maxiter must be >= 1, got {args.maxiter}")
     _check_foam_grid(args.box, args.resolution, args.gammas, "--gammas")
     args.settings = tables.SweepSettings(n_cells=args.cells, resolution=args.resolution, tol=args.tol, box=args.box,
-                                         distance=args.distance, maxiter=args.maxiter)
+                                         distance=args.distance, maxiter=args.maxiter,
+                                         discretization=args.discretization)
     check_output_dir(args.out, "--out")
     if args.cache is not None:
         check_output_dir(args.cache, "--cache")

@@ -60,6 +60,7 @@ from dolfinx import fem
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from foambase.cells import owned_cell_tags
 from foambase.errors import InputError, NotConvergedError
 from foambase.nullspace import rigid_body_modes
 from homogenization.result import LOAD_CASES, HomogenizationResult
@@ -146,13 +147,7 @@ def _check_box(box) -> np.ndarray:
 
 def _owned_cell_tags(mesh, cell_tags, comm) -> np.ndarray:
     """Tag of every owned cell (raises if some cell has none); the set of tags present is checked by the caller."""
-    tdim = mesh.topology.dim
-    if cell_tags.dim != tdim:
-        raise InputError(f"cell_tags must tag cells (dimension {tdim}), got tags of dimension {cell_tags.dim}")
-    n_owned = mesh.topology.index_map(tdim).size_local
-    tags = np.full(n_owned, -1, dtype=np.int64)
-    owned = cell_tags.indices < n_owned
-    tags[cell_tags.indices[owned]] = cell_tags.values[owned]
+    tags = owned_cell_tags(mesh, cell_tags, -1)
     n_untagged = comm.allreduce(int(np.count_nonzero(tags < 0)), op=MPI.SUM)
     if n_untagged:
         raise InputError(f"{n_untagged} cells of the mesh have no tag in cell_tags; every cell needs a material")

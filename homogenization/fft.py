@@ -32,15 +32,23 @@ The wave vector ``k`` depends on the discretization:
     Willot (2015): ``k_j ∝ (2/h_j) sin(ξ_j h_j/2) ∏_{l≠j} cos(ξ_l h_l/2)``, equivalent to trilinear hexahedra
     with one-point integration; no Gibbs ringing, well posed with void. Where this ``k`` vanishes away from
     ``ξ = 0`` (two components at Nyquist on an even grid: the hourglass modes) ``G = 0``.
+``"hex8"``
+    Trilinear hexahedra (the voxels) with full 2×2×2 Gauss integration, the conforming finite-element model of the
+    voxel image (Ladecký et al. 2023; FANS's HEX8 element): no hourglass modes, stiffer than ``"rotated"``, so the
+    two bracket the voxel geometry's moduli. Solved for the nodal displacements only (``scheme="pcg"``, its
+    Green preconditioner the inverse of the same discretization's stiffness for the identity material, a 3×3
+    matrix per wave vector; :class:`homogenization._nodal.Hex8Workspace`).
 
 Schemes and stopping criterion
 ------------------------------
-``"pcg"`` (default with ``"rotated"``; Ladecký et al. 2023)
+``"pcg"`` (default with ``"rotated"`` and ``"hex8"``; Ladecký et al. 2023)
     The rotated scheme solved for the nodal displacements ``u`` of the trilinear voxels: ``Bᵀ C B u = −Bᵀ C E``
     by conjugate gradients preconditioned with the Green operator ``(Bᵀ B)⁻¹`` (diagonal in Fourier space), see
     :mod:`homogenization._nodal`. Its iterates are those of ``"cg"`` mapped by ``B``: same residuals, iteration
     counts and C, with one FFT pair of 3 (not 6) components per iteration and about half the work arrays.
-    It also runs distributed over MPI ranks (``comm=``).
+    It also runs distributed over MPI ranks (``comm=``). With ``"hex8"`` the same CG solves the fully integrated
+    stiffness ``K = Σ_g B_gᵀ C B_g / 8`` preconditioned by ``K_I⁻¹`` of that discretization; it stops on the
+    relative preconditioned residual ``sqrt(rᵀ K_I⁻¹ r / r₀ᵀ K_I⁻¹ r₀)``, the counterpart of ``‖G[σ]‖/‖G[C:E]‖``.
 ``"cg"`` (default with ``"spectral"``; Zeman et al. 2010, Vondřejc et al. 2014)
     Solve ``G[C : ε̃] = −G[C : E]`` for ``ε̃`` in the range of ``G`` with conjugate gradients; the operator is
     symmetric positive semi-definite there (Mandel inner product), also with a zero-stiffness phase.
@@ -121,7 +129,9 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 SCHEMES = ("cg", "basic", "pcg")
-DISCRETIZATIONS = ("rotated", "spectral")
+DISCRETIZATIONS = ("rotated", "spectral", "hex8")
+#: The discretizations solved for nodal displacements (``scheme="pcg"``): trilinear voxels, one or 2×2×2 points.
+NODAL = ("rotated", "hex8")
 DEFAULT_MAXITER = {"cg": 1000, "basic": 5000, "pcg": 1000}
 
 _SQRT2 = np.sqrt(2.0)
@@ -170,8 +180,8 @@ def wave_directions(shape: tuple[int, int, int], discretization: str = "rotated"
         ``(3, N1, N2, N3//2 + 1)`` float64, ``m_1, m_2`` in FFT order, ``m_3 = 0 … N3//2``.
 
     """
-    if discretization not in DISCRETIZATIONS:
-        raise InputError(f"discretization must be one of {DISCRETIZATIONS}, got {discretization!r}")
+    if discretization not in ("rotated", "spectral"):
+        raise InputError(f"wave_directions: discretization must be 'rotated' or 'spectral', got {discretization!r}")
     N = tuple(int(s) for s in shape)
     L = _check_box(box)
     m = [np.fft.fftfreq(N[0], 1.0 / N[0]), np.fft.fftfreq(N[1], 1.0 / N[1]), np.arange(N[2] // 2 + 1.0)]
@@ -741,7 +751,8 @@ def homogenize_fft(
         the strain. ``"basic"``: Moulinec–Suquet fixed point with :func:`reference_medium` (refuses a
         zero-stiffness phase).
     discretization
-        ``"rotated"`` (Willot, default) or ``"spectral"`` (Moulinec–Suquet), see :func:`wave_directions`.
+        ``"rotated"`` (Willot, default) or ``"spectral"`` (Moulinec–Suquet), see :func:`wave_directions`;
+        ``"hex8"``: fully integrated trilinear voxels, ``scheme="pcg"`` only (the module docstring).
     box
         Lengths ``(L1, L2, L3)`` of the periodic box (any unit: only their ratios matter); default the unit cube,
         ``h_a = 1/N_a``. For an RVE box of lengths ``L`` with cubic voxels pass ``box=L`` with
@@ -777,7 +788,7 @@ def homogenize_fft(
     comm
         mpi4py communicator: with more than one rank the image is distributed over the ranks in slabs of planes
         along axis 0 (:func:`slab_planes`), the FFTs by mpi4py-fft; scheme
-        ``"pcg"``, discretization ``"rotated"``. Every rank returns the same result (``info`` adds ``ranks``,
+        ``"pcg"``, discretization ``"rotated"`` or ``"hex8"``. Every rank returns the same result (``info`` adds ``ranks``,
         ``planes``, ``work_bytes_per_rank``, ``peak_rss_bytes_per_rank``). At most ``min(N1, N3//2 + 1)`` ranks
         (the spectrum is split along its last axis); any rank count up to that works (uneven slabs). Call it on
         every rank of ``comm``.
@@ -887,7 +898,8 @@ def _make_workspace(run: _Run):
         return _Workspace(run.phases, run.stiffness, run.discretization, run.threads, box=run.box,
                           n_vectors={"cg": 2 + run.keep_iterate, "basic": 1}[run.scheme])
     tables = _nodal.stiffness_tables({p: run.stiffness[p] for p in run.counts})
-    ws = _nodal.NodalWorkspace(run.phases, tables, run.shape, run.box, run.threads, run.keep_iterate,
+    kind = _nodal.Hex8Workspace if run.discretization == "hex8" else _nodal.NodalWorkspace
+    ws = kind(run.phases, tables, run.shape, run.box, run.threads, run.keep_iterate,
                                comm=run.comm, i0=run.i0)
     ws.fractions = {p: c / ws.size for p, c in run.counts.items()}
     return ws
@@ -899,14 +911,17 @@ def _check_inputs(phases, materials, *, scheme, discretization, box, tol, maxite
     phases = _check_phases(phases)
     stiff, scale = _check_materials(materials, np.unique(phases))
     if scheme is None:
-        scheme = "pcg" if discretization == "rotated" else "cg"
+        scheme = "pcg" if discretization in NODAL else "cg"
     if scheme not in SCHEMES:
         raise InputError(f"scheme must be one of {SCHEMES}, got {scheme!r}")
     if discretization not in DISCRETIZATIONS:
         raise InputError(f"discretization must be one of {DISCRETIZATIONS}, got {discretization!r}")
-    if scheme == "pcg" and discretization != "rotated":
-        raise InputError(f"scheme='pcg' solves for the nodal displacements of the rotated discretization "
-                         f"(trilinear voxels); it cannot run discretization={discretization!r}: use scheme='cg'")
+    if scheme == "pcg" and discretization not in NODAL:
+        raise InputError(f"scheme='pcg' solves for the nodal displacements of trilinear voxels (discretizations "
+                         f"{NODAL}); it cannot run discretization={discretization!r}: use scheme='cg'")
+    if discretization == "hex8" and scheme != "pcg":
+        raise InputError(f"discretization='hex8' (fully integrated trilinear voxels) is solved by scheme='pcg' only, "
+                         f"got scheme={scheme!r}")
     if not (np.isfinite(tol) and 0.0 < tol < 1.0):
         raise InputError(f"tol must satisfy 0 < tol < 1, got tol = {tol}")
     maxiter = DEFAULT_MAXITER[scheme] if maxiter is None else maxiter
@@ -948,9 +963,9 @@ def _check_inputs_distributed(phases, materials, comm, slab, **settings) -> _Run
     # 1. checks of this rank's own arguments, gathered before any other collective call (a rank that raised here
     #    alone would leave the others waiting in the next one)
     def own():
-        if (scheme or "pcg") != "pcg" or discretization != "rotated":
+        if (scheme or "pcg") != "pcg" or discretization not in NODAL:
             raise InputError(f"distributed mode (comm with {size} ranks) runs scheme='pcg', "
-                             f"discretization='rotated'; got scheme={scheme!r}, discretization={discretization!r}")
+                             f"discretization 'rotated' or 'hex8'; got scheme={scheme!r}, discretization={discretization!r}")
         image = np.asarray(phases)
         if slab and image.ndim == 3 and image.shape[0] == 0:  # an empty slab: too many ranks (below)
             return image

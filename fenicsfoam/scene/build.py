@@ -21,7 +21,6 @@ probe kinds their probes (:mod:`fenicsfoam.scene.kinds`). Modelling choices:
 
 from __future__ import annotations
 
-import importlib
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
@@ -29,20 +28,19 @@ from typing import Any
 
 import numpy as np
 
-from fenicsfoam import materials as _materials
 from fenicsfoam import orientation as orient
 from fenicsfoam.constitutive import MaterialField
-from fenicsfoam.materials import Isotropic, TransverseIsotropic
+from fenicsfoam.material import MATERIAL_KINDS, Isotropic, tabulated_regions
 from fenicsfoam.meshcheck import check_degree, check_units, mesh_extent
-from fenicsfoam.scene.kinds import GROUP_PROBE_KINDS, LOAD_KINDS, PROBE_KINDS, BuildContext
+from fenicsfoam.scene.kinds import GEOMETRY_KINDS, GROUP_PROBE_KINDS, LOAD_KINDS, PROBE_KINDS, BuildContext
 from fenicsfoam.scene.schema import PETSC_PREFIX, Region, Scene
 from fenicsfoam.scene.table import SceneError, key_error
 from fenicsfoam.solver import ElasticityProblem, LoadStep
 from foambase.errors import InputError
+from foambase.imports import import_callable
 from foambase.mpi import on_every_rank
-from homogenization.tensors import InadmissibleMaterialError
 
-__all__ = ["Model", "build_model", "load_steps", "resolve_material"]
+__all__ = ["Model", "build_model", "check_materials", "load_steps", "resolve_material"]
 
 
 @dataclass
@@ -55,62 +53,32 @@ class Model:
     probes: dict[str, Callable]       #: name → probe, called with the displacement
     steps: list[LoadStep]
     materials: dict[str, dict]        #: region name → the resolved material's record (for summaries)
+    #: graded scenes: the per-cell foam data (:class:`fenicsfoam.grading.CellMaterials`), else None
+    cell_materials: Any = None
 
 
 # --------------------------------------------------------------------------------------------------
 # Materials and orientation
 # --------------------------------------------------------------------------------------------------
 def resolve_material(region: Region):
-    """The :mod:`fenicsfoam.materials` object of a region (foam: through ``foam_material``).
+    """The material of a region, by its kind's resolver (:data:`fenicsfoam.material.MATERIAL_KINDS`).
 
     A value the material refuses is a :class:`SceneError` naming the key (``regions.plate.E_solid``; for a
     condition on several constants the first one the message mentions, with the others).
     """
-    path = f"regions.{region.name}"
     try:
-        if region.material == "isotropic":
-            return Isotropic(**region.parameters)
-        if region.material == "transverse_isotropic":
-            return TransverseIsotropic(**region.parameters)
-        foam_material = getattr(_materials, "foam_material", None)
-        if foam_material is None:
-            raise SceneError(f"{path}: foam regions need fenicsfoam.materials.foam_material (the homogenized "
-                             "tables), which this installation lacks; use explicit constants")
-        params = dict(region.parameters)
-        density, gamma = (_representative(params.pop(key), key) for key in ("density", "gamma"))
-        for key in ("density", "gamma"):  # every per-tag value is checked against the table before meshing
-            spec = region.parameters[key]
-            for value in spec.get("per_tag", {}).values() if isinstance(spec, dict) else ():
-                foam_material(value if key == "density" else density, value if key == "gamma" else gamma,
-                              params["E_solid"], params["nu_solid"],
-                              **{k: params[k] for k in ("rho_solid", "fit", "table") if k in params})
-        return foam_material(density, gamma, params.pop("E_solid"), params.pop("nu_solid"), **params)
-    except (InadmissibleMaterialError, ValueError) as exc:
+        return MATERIAL_KINDS[region.material].resolve(region.parameters)
+    except ValueError as exc:  # InadmissibleMaterialError, InputError
         if isinstance(exc, SceneError):
             raise
-        raise key_error(path, region.parameters, str(exc)) from exc
-
-
-def _representative(spec, key: str) -> float:
-    """The value of a foam field that stands for its region before meshing (its material's kind, the summary).
-
-    The number, a per-tag table's first value, or for a function the middle of the foam table's range
-    (arithmetic for density, geometric for γ).
-    """
-    if not isinstance(spec, dict):
-        return spec
-    if "per_tag" in spec:
-        return next(iter(spec["per_tag"].values()))
-    from fenicsfoam.grading import FoamTable
-    lo, hi = getattr(FoamTable(), f"{key}_range")
-    return 0.5 * (lo + hi) if key == "density" else math.sqrt(lo * hi)
+        raise key_error(f"regions.{region.name}", region.parameters, str(exc)) from exc
 
 
 def _check_default_tables(scene: Scene, what: str) -> None:
     """Per-cell foam constants (:mod:`fenicsfoam.grading`) read the default (cube) foam table only."""
     for region in scene.regions:
         table = region.parameters.get("table")
-        if region.material == "foam" and table not in (None, "cube"):
+        if MATERIAL_KINDS[region.material].tabulated and table not in (None, "cube"):
             raise SceneError(f"regions.{region.name}.table: {what} read the default foam table 'cube' only, got "
                              f"{table!r}; remove the key or use numbers without blends")
 
@@ -134,13 +102,10 @@ def _graded_record(region: Region, material, cells, comm) -> dict[str, Any]:
 
 def _import_callable(spec: str) -> Callable[[np.ndarray], np.ndarray]:
     """The user's ``module:function``; any exception it raises becomes a :class:`SceneError` naming it."""
-    module, _, name = spec.partition(":")
     try:
-        function = getattr(importlib.import_module(module), name)
-    except Exception as exc:  # ImportError, AttributeError, or whatever the module raises when imported
-        raise SceneError(f"orientation.function: cannot import {spec!r}: {type(exc).__name__}: {exc}") from exc
-    if not callable(function):
-        raise SceneError(f"orientation.function: {spec!r} is a {type(function).__name__}, not a function")
+        function = import_callable(spec)
+    except InputError as exc:
+        raise SceneError(f"orientation.function: {exc}") from exc
 
     def directions(x: np.ndarray) -> np.ndarray:
         try:
@@ -201,46 +166,11 @@ def _build_orientation(scene: Scene, mesh, cell_tags):
 # --------------------------------------------------------------------------------------------------
 # Mesh
 # --------------------------------------------------------------------------------------------------
-def _mesh_file(comm, params: dict[str, Any]):
-    from meshes.msh import read_msh
-    return read_msh(comm, params["path"])
-
-
-def _mesh_beam(comm, params: dict[str, Any]):
-    from meshes.beam import make_beam
-    return make_beam(comm, **params)
-
-
-def _mesh_finger(comm, params: dict[str, Any]):
-    from meshes.finger import FingerGeometry, make_finger
-    h, order = params.pop("h"), params.pop("order")
-    try:
-        geometry = FingerGeometry(**params)
-    except ValueError as exc:
-        raise SceneError(f"geometry: {exc}") from exc
-    return make_finger(comm, h, geometry, order)
-
-
-def _mesh_tripod(comm, params: dict[str, Any]):
-    from meshes.tripod import TripodGeometry, make_tripod
-    h, order = params.pop("h"), params.pop("order")
-    try:
-        geometry = TripodGeometry(**params)
-    except ValueError as exc:  # named by _build_mesh
-        raise InputError(str(exc)) from exc
-    return make_tripod(comm, h, geometry, order)
-
-
-#: Geometry builders: ``[geometry] builder`` → function(comm, parameters) of the tagged mesh.
-MESHERS: dict[str, Callable] = {"file": _mesh_file, "beam": _mesh_beam, "tripod": _mesh_tripod,
-                                "finger": _mesh_finger}
-
-
 def _build_mesh(scene: Scene, comm):
     """The builder's tagged mesh; a parameter the builder refuses is a :class:`SceneError` naming the key."""
     params = dict(scene.geometry)
     try:
-        return MESHERS[scene.builder](comm, dict(params))
+        return GEOMETRY_KINDS[scene.builder].mesh(comm, dict(params))
     except InputError as exc:
         if isinstance(exc, SceneError):
             raise
@@ -253,19 +183,41 @@ def _build_mesh(scene: Scene, comm):
 def load_steps(scene: Scene) -> list[LoadStep]:
     """The scene's schedule as solver load steps (angles in radians)."""
     steps = []
-    for s in scene.steps:
-        angles = {} if s.servo_deg is None else {f"servo{i}": math.radians(a) for i, a in enumerate(s.servo_deg)}
+    servos = scene.servos
+    for index, s in enumerate(scene.steps):
+        # a servo's motion: its set-up (translation, horn at setup_deg) from the first step on, turned from there
+        turned = {**(dict.fromkeys(servos, 0.0) if index == 0 else {}), **s.servos}
+        angles = {name: math.radians(servos[name]["setup_deg"] + a) for name, a in turned.items()}
+        translations = {name: servos[name]["setup_translation"] for name in turned} if index == 0 else {}
         angles.update({name: math.radians(m["angle_deg"]) for name, m in s.motions.items() if "angle_deg" in m})
-        translations = {name: m["translation"] for name, m in s.motions.items() if "translation" in m}
+        translations.update({name: m["translation"] for name, m in s.motions.items() if "translation" in m})
         steps.append(LoadStep(s.label, gravity=s.gravity, increments=s.increments, angles=angles,
                               translations=translations, factors=dict(s.loads)))
     return steps
 
 
-def build_model(scene: Scene, comm) -> Model:
-    """Build the mesh, the problem and the probes of a validated scene (collective)."""
-    resolved = {region.name: resolve_material(region) for region in scene.regions}  # before meshing: fail fast
+def check_materials(scene: Scene) -> dict[str, Any]:
+    """The material of every region, resolved and checked before anything is built (:class:`SceneError`).
+
+    Every region's values (:func:`resolve_material`), the orientation the materials need, and the table graded
+    fields read. The first step of :func:`build_model`, and the check of every variation of a scene
+    (:func:`fenicsfoam.scene.vary.vary_scene`).
+    """
+    resolved = {region.name: resolve_material(region) for region in scene.regions}
     _check_orientation(scene, resolved)
+    if scene.graded:
+        _check_default_tables(scene, "graded foam fields")
+    return resolved
+
+
+def build_model(scene: Scene, comm, before_problem: Callable[[Any], Mapping[str, Any]] | None = None) -> Model:
+    """Build the mesh, the problem and the probes of a validated scene (collective).
+
+    ``before_problem(mesh)``, if given, is called once the mesh is built and before anything is assembled (e.g. to
+    size the run and refuse it, :mod:`fenicsfoam.sizing`); it returns PETSc options that the scene's own
+    ``[fem.petsc]`` options override (e.g. the solver chosen by size).
+    """
+    resolved = check_materials(scene)  # before meshing: fail fast
     tagged = _build_mesh(scene, comm)
     mesh, cell_tags = tagged.mesh, tagged.cell_tags
     extent = mesh_extent(mesh)
@@ -273,17 +225,16 @@ def build_model(scene: Scene, comm) -> Model:
     check_degree(mesh, scene.degree, extent)
     materials = {tag: resolved[region.name] for region in scene.regions for tag in region.tags}
     records = {region.name: _material_record(resolved[region.name]) for region in scene.regions}
+    cells = None
     if scene.graded:  # per-cell density and γ through the table (fenicsfoam.grading)
-        _check_default_tables(scene, "graded foam fields")
         from fenicsfoam.grading import CellMaterials
         try:
             cells = CellMaterials.from_regions(mesh, cell_tags, scene.regions, materials=resolved, blends=scene.blends)
             field = cells.material_field(mesh, materials)
         except InputError as exc:
             raise SceneError(f"regions: {exc}") from exc
-        for region in scene.regions:
-            if region.material == "foam":
-                records[region.name] = _graded_record(region, resolved[region.name], cells, comm)
+        for region in tabulated_regions(scene.regions):
+            records[region.name] = _graded_record(region, resolved[region.name], cells, comm)
     else:
         field = MaterialField.from_regions(mesh, cell_tags, materials)
     a = _build_orientation(scene, mesh, cell_tags)
@@ -294,9 +245,10 @@ def build_model(scene: Scene, comm) -> Model:
     except InputError as exc:
         raise SceneError(f"loads: {exc}") from exc
     gravity = (0.0, 0.0, 0.0) if scene.gravity is None else scene.gravity
+    chosen = {} if before_problem is None else dict(before_problem(mesh))
     problem = ElasticityProblem(mesh, field, orientation=a, model=scene.model, degree=scene.degree,
                                 gravity=gravity, motions=motions, loads=loads, prefix=PETSC_PREFIX,
-                                options=dict(scene.petsc))
+                                options={**chosen, **dict(scene.petsc)})
     context = BuildContext(scene, tagged, problem.V, problem)
     probes = {}
     for name in scene.probes:
@@ -310,4 +262,4 @@ def build_model(scene: Scene, comm) -> Model:
             if isinstance(exc, SceneError):
                 raise
             raise SceneError(f"probes: {name!r}: {exc}") from exc
-    return Model(tagged, problem, a, probes, load_steps(scene), records)
+    return Model(tagged, problem, a, probes, load_steps(scene), records, cells)

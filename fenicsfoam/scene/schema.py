@@ -19,33 +19,27 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from fenicsfoam.materials import FOAM_FITS
+from fenicsfoam.material.kinds import GRADED_KEYS, MATERIAL_KINDS, tabulated_regions
 from fenicsfoam.orientation import HANDEDNESS
-from fenicsfoam.scene.kinds import GROUP_PROBE_KINDS, LOAD_KINDS, PROBE_KINDS, MeshInfo
+from fenicsfoam.scene.kinds import (
+    GEOMETRY_KINDS,
+    GROUP_PROBE_KINDS,
+    LOAD_KINDS,
+    PROBE_KINDS,
+    MeshInfo,
+    tripod_flat_servos,
+)
 from fenicsfoam.scene.table import SceneError, _Table, _tags, _type_name, _vector
 
 __all__ = ["LABEL_PATTERN", "RESERVED_NAMES", "Region", "Scene", "Step", "load_scene", "parse_scene"]
 
+#: Per material kind (:data:`fenicsfoam.material.MATERIAL_KINDS`): its numeric keys, ``key: (required, default)``.
 MATERIAL_KEYS: dict[str, dict[str, tuple[bool, float | None]]] = {
-    # key: (required, default)
-    "isotropic": {"E": (True, None), "nu": (True, None), "rho": (False, 0.0)},
-    "transverse_isotropic": {"E_t": (True, None), "E_l": (True, None), "nu_t": (True, None),
-                             "nu_tl": (True, None), "G_l": (True, None), "rho": (False, 0.0)},
-    "foam": {"density": (True, None), "gamma": (True, None), "E_solid": (True, None), "nu_solid": (True, None),
-             "rho_solid": (False, 0.0)},
-}
-_POSITIVE = {"check": lambda v: v > 0, "valid": "a number > 0"}
+    name: {k.name: (k.required, k.default) for k in kind.keys if k.form in ("number", "field", "modulus")}
+    for name, kind in MATERIAL_KINDS.items()}
 #: Range checks of the material constants (the material classes check admissibility again).
-MATERIAL_CHECKS: dict[str, dict[str, Any]] = {
-    "E": _POSITIVE, "E_t": _POSITIVE, "E_l": _POSITIVE, "G_l": _POSITIVE, "E_solid": _POSITIVE,
-    "nu": {"check": lambda v: -1 < v < 0.5, "valid": "-1 < nu < 0.5"},
-    "nu_solid": {"check": lambda v: -1 < v < 0.5, "valid": "-1 < nu_solid < 0.5"},
-    "nu_t": {"check": lambda v: -1 < v < 1, "valid": "-1 < nu_t < 1"},
-    "rho": {"check": lambda v: v >= 0, "valid": "a density >= 0 (kg/m³)"},
-    "rho_solid": {"check": lambda v: v >= 0, "valid": "a density >= 0 (kg/m³)"},
-    "density": {"check": lambda v: 0 < v <= 1, "valid": "a relative density in (0, 1]"},
-    "gamma": {"check": lambda v: 0 < v <= 1, "valid": "an anisotropy ratio in (0, 1] (1: isotropic)"},
-}
+MATERIAL_CHECKS: dict[str, dict[str, Any]] = {k.name: {"check": k.check, "valid": k.valid}
+                                              for kind in MATERIAL_KINDS.values() for k in kind.keys if k.check}
 ORIENTATION_KINDS = ("uniform", "per_tag", "spiral", "callable")
 #: The options prefix of every scene's SNES (command-line options: ``-scene_snes_rtol 1e-8``).
 PETSC_PREFIX = "scene_"
@@ -54,7 +48,7 @@ PETSC_PREFIX = "scene_"
 LABEL_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 #: Names of a run's fixed outputs (``summary.json``, ``probes.csv``, ``solution.xdmf``, ``orientation.png``): no
 #: step label may take one (compared without case, as case-insensitive file systems do).
-RESERVED_NAMES = ("summary", "probes", "solution", "orientation")
+RESERVED_NAMES = ("summary", "probes", "solution", "orientation", "run")
 
 
 # --------------------------------------------------------------------------------------------------
@@ -66,21 +60,22 @@ class Region:
 
     name: str
     tags: tuple[int, ...]
-    material: str                     #: "isotropic" | "transverse_isotropic" | "foam"
-    parameters: Mapping[str, Any]     #: the material's keyword arguments (foam: also ``fit``)
+    material: str                     #: the kind, a key of :data:`fenicsfoam.material.MATERIAL_KINDS`
+    parameters: Mapping[str, Any]     #: the values of the kind's keys (foam: also ``fit``, and ``table`` if given)
 
 
 @dataclass(frozen=True)
 class Step:
-    """A load step of the schedule: gravity factor, horn angles (degrees), increments, load factors, motions."""
+    """A load step of the schedule: gravity factor, increments, load factors, motions, servo angles."""
 
     label: str
     gravity: float | None
-    servo_deg: tuple[float, float, float] | None
     increments: int
     loads: Mapping[str, float] = field(default_factory=dict)   #: factor per named load and per contact
     #: per named motion: ``{"angle_deg": float, "translation": (tx, ty, tz)}`` (either may be absent)
     motions: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    #: per servo actuator: its horn's angle from rest (deg); servos not listed keep theirs
+    servos: Mapping[str, float] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -123,75 +118,19 @@ class Scene:
         return self.loads["clamp"]
 
     @property
-    def servos(self) -> bool:
-        """Whether the Tripod's servo horns carry the arm ends."""
-        return self.loads["servos"]
+    def servos(self) -> Mapping[str, Mapping[str, Any]]:
+        """The servo actuators by name (``[loads.servo.NAME]``, or the Tripod's three of ``loads.servos = true``)."""
+        return self.loads["servo"]
 
 
 # --------------------------------------------------------------------------------------------------
 # Section readers
 # --------------------------------------------------------------------------------------------------
-def _builder_info(builder: str) -> tuple[dict[str, Any], dict[str, tuple[int, ...]], dict[str, tuple[int, ...]]]:
-    """Defaults of the builder's parameters, its named cell regions and named facet groups."""
-    from dataclasses import fields
-
-    if builder == "beam":
-        from meshes.beam import BEAM_VOLUME, CLAMPED_FACE, FIG6_BEAM, TIP_FACE
-        return ({**FIG6_BEAM, "order": 1}, {"beam": (BEAM_VOLUME,)},
-                {"clamped": (CLAMPED_FACE,), "tip": (TIP_FACE,)})
-    if builder == "finger":
-        from meshes.finger import CELL_TAGS, FACET_TAGS, FingerGeometry
-        facets = {name: (tag,) for name, tag in FACET_TAGS.items()}
-        return ({"h": 0.003, "order": 1, **{f.name: f.default for f in fields(FingerGeometry)}},
-                {name: (tag,) for name, tag in CELL_TAGS.items()}, facets)
-
-    from meshes.tripod import PAPER_H, REGIONS, TripodGeometry
-    defaults = {f.name: f.default for f in fields(TripodGeometry)}
-    return {"h": PAPER_H, "order": 1, **defaults}, dict(REGIONS), {}
-
-
-def _read_mesh_file(geometry: _Table, base: Path | None) -> MeshInfo:
-    """``builder = "file"``: a gmsh ``.msh`` file; its physical groups are read (not the mesh) to validate."""
-    from meshes.msh import physical_groups
-
-    path = Path(geometry.string("path", required=True))
-    geometry.done()
-    if not path.is_absolute() and base is not None:
-        path = base / path
-    if not path.is_file():
-        raise SceneError(f"geometry.path: mesh file {str(path)!r} does not exist")
-    try:
-        groups = physical_groups(path)
-    except ValueError as exc:
-        raise SceneError(f"geometry.path: {exc}") from exc
-    return MeshInfo("file", {"path": path}, {n: (t,) for n, t in groups.cell_names.items()},
-                    {n: (t,) for n, t in groups.facet_names.items()}, groups.cells, groups.facets)
-
-
 def _read_geometry(scene: _Table, base: Path | None) -> MeshInfo:
+    """``[geometry]``: the builder (:data:`~fenicsfoam.scene.kinds.GEOMETRY_KINDS`) reads and checks its keys."""
     geometry = scene.table("geometry", required=True)
-    builder = geometry.string("builder", required=True, choices=("beam", "tripod", "finger", "file"))
-    if builder == "file":
-        return _read_mesh_file(geometry, base)
-    defaults, regions, facets = _builder_info(builder)
-    params = {}
-    for key, default in defaults.items():
-        if isinstance(default, bool):
-            params[key] = geometry.boolean(key, default)
-        elif key == "order":
-            params[key] = geometry.integer(key, default=default, choices=(1, 2))
-        elif key == "pivot_z":
-            params[key] = geometry.number(key, default=default)
-        elif key in ("fillet_radius", "pad"):
-            params[key] = geometry.number(key, default=default, check=lambda v: v >= 0, valid="a length >= 0 (m)")
-        else:
-            params[key] = geometry.number(key, default=default, check=lambda v: v > 0, valid="a length > 0 (m)")
-    geometry.done()
-    if builder == "finger":
-        absent = {"chamber": not params["chamber"], "pad": params["pad"] == 0}
-        facets = {name: tags for name, tags in facets.items() if not absent.get(name)}
-    return MeshInfo(builder, params, regions, facets, frozenset().union(*regions.values()),
-                    frozenset().union(*facets.values()))
+    builder = geometry.string("builder", required=True, choices=tuple(GEOMETRY_KINDS))
+    return GEOMETRY_KINDS[builder].info(builder, geometry, base)
 
 
 def _read_fem(scene: _Table) -> tuple[str, int, dict[str, Any]]:
@@ -251,10 +190,6 @@ def _foam_table_name(region: _Table, base: Path | None) -> str:
     return value
 
 
-#: Keys of a foam region that may be fields (a per-tag table or a function of the cell midpoints).
-GRADED_KEYS = ("density", "gamma")
-
-
 def _read_field(table: _Table, key: str, tags: tuple[int, ...], named: Mapping[str, tuple[int, ...]]):
     """A foam's ``density`` or ``gamma``: a number, a per-tag table or a function (:mod:`fenicsfoam.grading`).
 
@@ -292,20 +227,29 @@ def _read_field(table: _Table, key: str, tags: tuple[int, ...], named: Mapping[s
 
 def _read_region(name: str, table: _Table, named: Mapping[str, tuple[int, ...]], base: Path | None = None
                  ) -> Region:
+    """A region: its tags, its kind (:data:`~fenicsfoam.material.MATERIAL_KINDS`) and the kind's keys.
+
+    Each key is read in its form: a number, a field, a modulus or its calibration, a choice, a foam table.
+    """
     tags = _tags(table.raw("tags", required=True), table.key("tags"), named, "region")
-    material = table.string("material", required=True, choices=tuple(MATERIAL_KEYS))
-    calibrated = material == "foam" and isinstance(table.data.get("E_solid"), dict)
-    foam_table = _foam_table_name(table, base) if material == "foam" and "table" in table.data else None
-    parameters = {key: (_calibrated_E_solid(name, table, base, foam_table) if calibrated and key == "E_solid" else
-                        _read_field(table, key, tags, named) if material == "foam" and key in GRADED_KEYS else
-                        table.number(key, required=required, default=default, **MATERIAL_CHECKS.get(key, {})))
-                  for key, (required, default) in MATERIAL_KEYS[material].items()}
-    if material == "foam":
-        parameters["fit"] = table.string("fit", default="transverse", choices=FOAM_FITS)
-        if foam_table is not None:
-            parameters["table"] = foam_table
+    kind = MATERIAL_KINDS[table.string("material", required=True, choices=tuple(MATERIAL_KINDS))]
+    forms = {k.form: k.name for k in kind.keys}
+    foam_table = _foam_table_name(table, base) if "table" in forms and forms["table"] in table.data else None
+    parameters = {}
+    for key in kind.keys:
+        checks = {"check": key.check, "valid": key.valid} if key.check else {}
+        if key.form == "modulus" and isinstance(table.data.get(key.name), dict):
+            parameters[key.name] = _calibrated_E_solid(name, table, base, foam_table)
+        elif key.form == "field":
+            parameters[key.name] = _read_field(table, key.name, tags, named)
+        elif key.form in ("number", "modulus"):
+            parameters[key.name] = table.number(key.name, required=key.required, default=key.default, **checks)
+        elif key.form == "choice":
+            parameters[key.name] = table.string(key.name, default=key.default, choices=key.choices)
+        elif foam_table is not None:
+            parameters[key.name] = foam_table
     table.done()
-    return Region(name, tags, material, parameters)
+    return Region(name, tags, kind.name, parameters)
 
 
 def _read_regions(scene: _Table, mesh: MeshInfo, base: Path | None = None) -> tuple[Region, ...]:
@@ -381,9 +325,9 @@ def _read_blends(scene: _Table, regions: tuple[Region, ...]) -> tuple[dict[str, 
             raise SceneError(f"{table.key('regions')}: expected two distinct region names, got {pair!r}")
         for name in pair:
             region = by_name.get(name)
-            if region is None or region.material != "foam":
+            if region is None or not MATERIAL_KINDS[region.material].tabulated:
                 raise SceneError(f"{table.key('regions')}: {name!r} is not a foam region "
-                                 f"(foam regions: {sorted(n for n, r in by_name.items() if r.material == 'foam')})")
+                                 f"(foam regions: {sorted(r.name for r in tabulated_regions(regions))})")
             for key in GRADED_KEYS:
                 if isinstance(region.parameters[key], dict):
                     raise SceneError(f"{table.key('regions')}: region {name!r} gives {key} as a field; a blend "
@@ -403,8 +347,10 @@ def _read_loads(scene: _Table, mesh: MeshInfo) -> dict[str, Any]:
     loads = {key: kind.read(table, key, mesh) if kind.section is None else kind.read(scene, kind.section, mesh)
              for key, kind in LOAD_KINDS.items()}
     table.done()
+    if loads["servos"]:
+        loads["servo"] = tripod_flat_servos(mesh.params)
     seen: dict[str, str] = {}
-    for key in [*(k for k, kind in LOAD_KINDS.items() if kind.named), "motion"]:
+    for key in [*(k for k, kind in LOAD_KINDS.items() if kind.named), "motion", "servo"]:
         path = LOAD_KINDS[key].section or f"loads.{key}"
         for name in loads[key]:
             if name in seen:
@@ -490,24 +436,54 @@ def _read_label(table: _Table) -> str:
     return label
 
 
+def _read_step_servos(table: _Table, loads: Mapping[str, Any]) -> dict[str, float]:
+    """A step's horn angles from rest (deg): ``servos = {NAME = deg}`` (or one number), or ``servo_deg``.
+
+    ``servo_deg`` is the shorthand of ``loads.servos = true``; each servo's ``range_deg`` bounds ``setup_deg + θ``.
+    """
+    servos = loads["servo"]
+    angles: dict[str, float] = {}
+    for key in ("servos", "servo_deg"):
+        value = table.raw(key)
+        if value is None:
+            continue
+        if not servos:
+            raise SceneError(f"{table.key(key)}: the scene has no servos; set loads.servos = true (Tripod) or "
+                             f"declare [loads.servo.NAME], or remove {key}")
+        if angles:
+            raise SceneError(f"{table.key(key)}: give servos or servo_deg, not both")
+        if isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value):
+            angles = dict.fromkeys(servos, float(value))
+        elif key == "servo_deg":
+            if list(servos) != ["servo0", "servo1", "servo2"]:
+                raise SceneError(f"{table.key(key)}: an array of three angles is the shorthand of loads.servos = "
+                                 f"true; name the servos instead: servos = {{NAME = deg}} ({', '.join(servos)})")
+            angles = dict(zip(servos, _vector(value, 3, table.key(key))))
+        else:
+            named = table.table(key)
+            for name in list(named.data):
+                if name not in servos:
+                    raise SceneError(f"{named.key(name)}: no servo named {name!r}; declared servos: "
+                                     f"{', '.join(servos)}")
+                angles[name] = named.number(name, required=True)
+            named.done()
+        for name, angle in angles.items():
+            limits = servos[name]["range_deg"]
+            if limits is not None and not limits[0] <= servos[name]["setup_deg"] + angle <= limits[1]:
+                raise SceneError(f"{table.key(key)}: servo {name!r} at {angle:g}° from rest reaches "
+                                 f"{servos[name]['setup_deg'] + angle:g}°, outside its range_deg {list(limits)}")
+    return angles
+
+
 def _read_step(table: _Table, loads: Mapping[str, Any]) -> Step:
-    servos = loads["servos"]
     label = _read_label(table)
     gravity = table.number("gravity", check=lambda v: v >= 0, valid="a load factor >= 0 (1: full gravity)")
-    servo = table.raw("servo_deg")
-    if servo is not None:
-        if not servos:
-            raise SceneError(f"{table.key('servo_deg')}: the scene has no servos; set loads.servos = true "
-                             "(Tripod) or remove servo_deg")
-        if isinstance(servo, int | float) and not isinstance(servo, bool) and math.isfinite(servo):
-            servo = (float(servo),) * 3
-        else:
-            servo = _vector(servo, 3, table.key("servo_deg"))
+    servos = _read_step_servos(table, loads)
     increments = table.integer("increments", default=1, minimum=1)
     factors = {**_read_step_loads(table, loads), **_read_step_contacts(table, loads)}
     motions = _read_step_motions(table, loads)
     table.done()
-    return Step(label, gravity, servo, increments, factors, motions)
+    return Step(label, gravity, increments, factors, motions, servos)
 
 
 def _read_steps(scene: _Table, loads: Mapping[str, Any]) -> tuple[Step, ...]:

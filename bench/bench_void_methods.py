@@ -1,0 +1,199 @@
+"""Benchmark: homogenizing void foams with one-point (``rotated``) and fully integrated (``hex8``) trilinear voxels.
+
+Both are solved by the nodal Green-preconditioned CG (``scheme="pcg"`` of :func:`homogenization.fft.homogenize_fft`)
+with a zero-stiffness void and a solid of E = 1, ν = 0.3, on the foams ``VoronoiFoam(--cells, --density, γ,
+seed=--seed, box="equiaxed", distance=...)`` — struts (``euclidean``) and walls (``polyhedral``), γ = 1 and 0.1 —
+each at two grids: ``--cubic N N'`` for γ = 1 (N³ voxels) and ``--flat A B`` for γ = 0.1 (grids ``(A/5) × A × A``,
+voxels twice as long along y and z as along x, as the shipped wall-foam table). Every run is one fresh process
+(its peak RSS is its own), one thread, tolerance ``--tol``.
+
+Printed and written to ``OUT/bench_void_methods.csv`` per run: iterations per load case and in total, CPU seconds of
+the solving process (``time.process_time``: robust on a shared machine, where wall times are not), CPU ms per
+iteration, the solver's work arrays and the process's peak RSS, the diagonal of C, the solid's hinges and islands
+(:mod:`homogenization.connectivity`), and the moduli's difference from a reference:
+
+``ref``: per foam, each discretization extrapolated to h → 0 from its two grids with the first order of a voxel
+staircase (``q0 = q_f + (q_f − q_c)/(r − 1)``, r the grid ratio), and the reference the mean of the two
+extrapolations. ``dC_diag`` is the largest relative difference of the six diagonal moduli C11 … C66 from the
+reference (the soft moduli of γ = 0.1 count as much as the stiff ones); ``dC_fro`` the Frobenius difference relative
+to the reference's norm. ``ref_spread`` is the relative difference of the two extrapolations (how much the
+reference itself is to be trusted).
+
+With ``--hinges``: instead, the hinges and islands (:func:`homogenization.connectivity.connectivity`) of the foams
+of the shipped tables at their own resolutions (``cube``: 8 cells, N = 48, densities 0.09, 0.18, 0.34; ``equiaxed``:
+27 cells, γ = 1 at N = 60, γ = 0.1 on 15 × 150 × 150; ``equiaxed_polyhedral``: 8 cells, γ = 1 at N = 96, γ = 0.1 on
+60 × 300 × 300; density 0.18 where not said; γ = 1 and 0.1; ``--hinge-seeds``, default 0 1 2), written to
+``OUT/hinges.csv``.
+
+Usage: ``python bench/bench_void_methods.py --out out/void [--foams walls struts] [--gammas 1 0.1]
+[--cubic 32 48] [--flat 100 150] [--methods rotated hex8] [--tol 1e-3]``.
+"""
+
+from foambase.threads import single_threaded_blas_by_default
+
+single_threaded_blas_by_default()  # before numpy loads OpenBLAS: its threads spin against FFTW's
+
+import argparse  # noqa: E402
+import csv  # noqa: E402
+import multiprocessing  # noqa: E402
+import time  # noqa: E402
+from concurrent.futures import ProcessPoolExecutor  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from foambase.files import atomic_open  # noqa: E402
+
+COLUMNS = ["foam", "gamma", "grid", "voxels", "method", "iterations", "total_iterations", "cpu_s", "cpu_ms_per_it",
+           "work_MB", "peak_rss_MB", "C11", "C22", "C33", "C44", "C55", "C66", "dC_diag", "dC_fro", "ref_spread",
+           "hinges", "hinged_islands", "floating_islands"]
+DISTANCE = {"struts": "euclidean", "walls": "polyhedral"}
+
+
+def _grid(gamma: float, size: int):
+    return (size,) * 3 if gamma == 1.0 else (size // 5, size, size)
+
+
+def run_one(foam: str, gamma: float, size: int, method: str, a: dict) -> dict:
+    """One homogenization in this (fresh) process."""
+    import resource
+
+    from homogenization.connectivity import connectivity
+    from homogenization.fft import homogenize_fft
+    from homogenization.tensors import isotropic_voigt
+    from meshes.foam import VoronoiFoam
+
+    vf = VoronoiFoam(a["cells"], a["density"], gamma, seed=a["seed"], box="equiaxed", distance=DISTANCE[foam])
+    grid = _grid(gamma, size)
+    image = vf.voxelize(grid if gamma != 1.0 else size, cubic=gamma == 1.0).astype(np.int8)
+    topology = connectivity(image)
+    t0 = time.process_time()
+    r = homogenize_fft(image, [np.zeros((6, 6)), isotropic_voigt(1.0, 0.3)], discretization=method, tol=a["tol"],
+                       box=tuple(vf.box), maxiter=a["maxiter"], threads=1, raise_on_failure=False)
+    cpu = time.process_time() - t0
+    total = int(sum(r.iterations))
+    return {"foam": foam, "gamma": gamma, "grid": "x".join(map(str, image.shape)), "voxels": int(image.size),
+            "method": method, "iterations": "/".join(map(str, r.iterations)), "total_iterations": total,
+            "cpu_s": cpu, "cpu_ms_per_it": 1e3 * cpu / max(total, 1), "work_MB": r.info["work_bytes"] / 2**20,
+            "peak_rss_MB": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+            "C": r.C.tolist(), "converged": r.converged, "hinges": topology.hinges,
+            "hinged_islands": topology.hinged_islands, "floating_islands": topology.floating_islands}
+
+
+def references(rows: list[dict]) -> None:
+    """Fill ``dC_diag``, ``dC_fro`` and ``ref_spread`` of every row (see the module docstring)."""
+    for key in {(r["foam"], r["gamma"]) for r in rows}:
+        group = [r for r in rows if (r["foam"], r["gamma"]) == key]
+        extrapolated = []
+        for method in {r["method"] for r in group}:
+            levels = sorted((r for r in group if r["method"] == method), key=lambda r: r["voxels"])
+            if len(levels) < 2:
+                continue
+            coarse, fine = np.array(levels[-2]["C"]), np.array(levels[-1]["C"])
+            ratio = (levels[-1]["voxels"] / levels[-2]["voxels"]) ** (1 / 3)
+            extrapolated.append(fine + (fine - coarse) / (ratio - 1.0))
+        if not extrapolated:
+            continue
+        ref = np.mean(extrapolated, axis=0)
+        d_ref = np.diag(ref)
+        spread = float("nan")
+        if len(extrapolated) > 1:
+            spread = float(np.max(np.abs(np.diag(extrapolated[0]) - np.diag(extrapolated[1])) / np.abs(d_ref)))
+        for r in group:
+            C = np.array(r["C"])
+            r["dC_diag"] = float(np.max(np.abs(np.diag(C) - d_ref) / np.abs(d_ref)))
+            r["dC_fro"] = float(np.linalg.norm(C - ref) / np.linalg.norm(ref))
+            r["ref_spread"] = spread
+
+
+#: (table, cells, box, distance, γ, grid: N (cubic voxels) or (N1, N2, N3), densities)
+SHIPPED = [("cube", 8, "cube", "euclidean", g, 48, (0.09, 0.18, 0.34)) for g in (1.0, 0.1)] + [
+    ("equiaxed", 27, "equiaxed", "euclidean", 1.0, 60, (0.18,)),
+    ("equiaxed", 27, "equiaxed", "euclidean", 0.1, (15, 150, 150), (0.18,)),
+    ("equiaxed_polyhedral", 8, "equiaxed", "polyhedral", 1.0, 96, (0.18,)),
+    ("equiaxed_polyhedral", 8, "equiaxed", "polyhedral", 0.1, (60, 300, 300), (0.18,))]
+
+
+def hinge_rows(seeds) -> list[dict]:
+    from homogenization.connectivity import connectivity
+    from meshes.foam import VoronoiFoam
+
+    rows = []
+    for table, cells, box, distance, gamma, grid, densities in SHIPPED:
+        for density in densities:
+            for seed in seeds:
+                vf = VoronoiFoam(cells, density, gamma, seed=seed, box=None if box == "cube" else box,
+                                 distance=distance)
+                image = vf.voxelize(grid, cubic=not isinstance(grid, tuple))
+                r = connectivity(image)
+                row = {"table": table, "density": density, "gamma": gamma, "seed": seed,
+                       "grid": "x".join(map(str, image.shape))} | r.as_dict()
+                row["edge_contacts"] = "/".join(map(str, row["edge_contacts"]))
+                rows.append(row)
+                print(f"{table:20s} ρ={density:<5g} γ={gamma:<4g} seed {seed} {row['grid']:>11s}: solid "
+                      f"{r.solid_voxels:9d}  edge-only {row['edge_contacts']:>14s}  corner-only {r.corner_contacts:5d}  "
+                      f"components {r.components:4d}  hinged islands {r.hinged_islands:3d} ({r.hinged_island_voxels} "
+                      f"voxels)  floating {r.floating_islands:3d} ({r.floating_island_voxels} voxels)", flush=True)
+    return rows
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--foams", nargs="+", choices=tuple(DISTANCE), default=list(DISTANCE))
+    p.add_argument("--gammas", type=float, nargs="+", default=[1.0, 0.1])
+    p.add_argument("--cubic", type=int, nargs="+", default=[32, 48], help="N of the γ = 1 grids N³")
+    p.add_argument("--flat", type=int, nargs="+", default=[100, 150], help="A of the γ = 0.1 grids (A/5) × A × A")
+    p.add_argument("--methods", nargs="+", choices=("rotated", "hex8"), default=["rotated", "hex8"])
+    p.add_argument("--cells", type=int, default=8)
+    p.add_argument("--density", type=float, default=0.18)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--tol", type=float, default=1e-3)
+    p.add_argument("--maxiter", type=int, default=20000)
+    p.add_argument("--hinges", action="store_true", help="count hinges and islands of the shipped tables' foams")
+    p.add_argument("--hinge-seeds", type=int, nargs="+", default=[0, 1, 2])
+    a = p.parse_args(argv)
+    if a.hinges:
+        rows = hinge_rows(a.hinge_seeds)
+        a.out.mkdir(parents=True, exist_ok=True)
+        with atomic_open(a.out / "hinges.csv", "w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+            writer.writeheader()
+            writer.writerows(rows)
+        print(f"wrote {a.out / 'hinges.csv'}")
+        return 0
+    settings = {"cells": a.cells, "density": a.density, "seed": a.seed, "tol": a.tol, "maxiter": a.maxiter}
+    jobs = [(foam, gamma, size, method) for foam in a.foams for gamma in a.gammas
+            for size in (a.cubic if gamma == 1.0 else a.flat) for method in a.methods]
+    rows = []
+    ctx = multiprocessing.get_context("spawn")
+    for job in jobs:  # one fresh process per run: its peak RSS is its own
+        with ProcessPoolExecutor(max_workers=1, mp_context=ctx) as pool:
+            row = pool.submit(run_one, *job, settings).result()
+        rows.append(row)
+        print(f"{row['foam']:6s} γ={row['gamma']:<4g} {row['grid']:>12s} {row['method']:7s} "
+              f"it {row['iterations']:>32s} = {row['total_iterations']:6d}  CPU {row['cpu_s']:8.1f} s "
+              f"({row['cpu_ms_per_it']:6.2f} ms/it)  RSS {row['peak_rss_MB']:6.0f} MB  "
+              f"diag {np.round(np.diag(row['C']), 5).tolist()}{'' if row['converged'] else '  NOT CONVERGED'}",
+              flush=True)
+    references(rows)
+    print(f"\n{'foam':6s} {'γ':>4s} {'grid':>12s} {'method':7s} {'Σ it':>6s} {'CPU s':>8s} {'ms/it':>6s} "
+          f"{'RSS MB':>6s} {'dC_diag':>8s} {'dC_fro':>8s} {'spread':>7s} {'hinges':>6s}")
+    for r in rows:
+        C = np.array(r.pop("C"))
+        r.update({f"C{i + 1}{i + 1}": float(C[i, i]) for i in range(6)})
+        print(f"{r['foam']:6s} {r['gamma']:4g} {r['grid']:>12s} {r['method']:7s} {r['total_iterations']:6d} "
+              f"{r['cpu_s']:8.1f} {r['cpu_ms_per_it']:6.2f} {r['peak_rss_MB']:6.0f} {r.get('dC_diag', np.nan):8.3f} "
+              f"{r.get('dC_fro', np.nan):8.3f} {r.get('ref_spread', np.nan):7.3f} {r['hinges']:6d}")
+    a.out.mkdir(parents=True, exist_ok=True)
+    path = a.out / "bench_void_methods.csv"
+    with atomic_open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=COLUMNS, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(rows)
+    print(f"wrote {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
