@@ -99,7 +99,7 @@ class Obstacle:
             return ufl.dot(x - ufl.as_vector(list(map(float, self.point))), normal), normal
         if self.shape == "sphere":
             r = x - ufl.as_vector(list(map(float, self.center)))
-            length = ufl.sqrt(ufl.dot(r, r))
+            length = ufl.sqrt(ufl.dot(r, r) + (1e-12 * float(self.radius)) ** 2)  # finite at the centre
             return length - float(self.radius), r / length
         lo, hi = np.asarray(self.min, float), np.asarray(self.max, float)
         c, half = ufl.as_vector(((lo + hi) / 2).tolist()), ((hi - lo) / 2).tolist()
