@@ -90,6 +90,14 @@ class Obstacle:
         if self.shape == "box" and not np.all(np.asarray(self.max) > np.asarray(self.min)):
             raise InputError(f"obstacle box: max {list(self.max)} must exceed min {list(self.min)} in every component")
 
+    def moved(self, shift) -> Obstacle:
+        """The obstacle translated by ``shift`` (m), at rest (its ``motion`` zero)."""
+        from dataclasses import replace
+        d = np.asarray(shift, dtype=float)
+        moved = {k: tuple((np.asarray(getattr(self, k), float) + d).tolist()) for k in ("point", "center", "min", "max")
+                 if getattr(self, k) is not None}
+        return replace(self, motion=(0.0, 0.0, 0.0), **moved)
+
     # ----------------------------------------------------------------------------------------------
     def distance(self, x):
         """UFL signed distance ``d(x)`` and outward normal ``n(x)`` of the obstacle at rest, for a UFL point ``x``."""
