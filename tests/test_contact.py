@@ -89,6 +89,22 @@ def test_a_block_pressed_onto_a_plane_carries_the_load_and_closes_the_gap_at_sec
     assert gaps[2] / gaps[4] > 3.0
 
 
+def test_a_box_obstacle_acts_as_its_top_face():
+    """A block pressed on a wide box whose top face is the plane z = 0: the same state as on that plane."""
+    from fenicsfoam.solver import LoadStep
+
+    def box(mesh, tags):
+        from fenicsfoam.contact import Contact, Obstacle
+        return Contact("table", mesh, tags, BOTTOM, Obstacle("box", min=(-0.05, -0.05, -0.02), max=(0.06, 0.06, 0.0)))
+    states = []
+    for obstacle in (plane(), box):
+        problem = block(SELF, 2, loads=[press(0.1), obstacle], motions=[guide])
+        problem.solve_step(LoadStep("press", factors={"press": 1.0}, increments=2))
+        states.append((problem.u.x.array.copy(), problem.external["table"].force()))
+    np.testing.assert_allclose(states[1][0], states[0][0], rtol=0, atol=1e-12 * np.abs(states[0][0]).max())
+    np.testing.assert_allclose(states[1][1], [0.0, 0.0, 0.1], rtol=0, atol=1e-9)
+
+
 def test_a_moving_plane_against_a_clamped_block_matches_a_frictionless_support():
     """The plane moved up by δ (the load factor) against a block clamped on top, and the same block with its bottom
     face moved by δ in z only (a frictionless support): the same force to the discretisation error."""
