@@ -79,7 +79,8 @@ def main() -> int:
     # %%
     target = TARGET_FRACTION * rows[-1]["grasp_force_N"]
     control_scene = copy.deepcopy(scene)
-    # rest, then the pressure in four increments (as the sweep's steps: the contact closes during the step)
+    # rest, then the pressure in four increments (as the sweep's steps: the contact closes during the step; one
+    # increment also converges, after cut-backs)
     control_scene["steps"] = [scene["steps"][0], {**scene["steps"][-1], "increments": 4}]
     control_scene["outputs"] = {"png": False, "xdmf": False}
     result = control_servos(parse_scene(control_scene), {"contact_force:ball[2]": target},

@@ -679,6 +679,10 @@ class ElasticityProblem:
             snes.solve(None, self._x)
         self._sync(self._x)
         reason = snes.getConvergedReason()
+        if snes.getKSP().getConvergedReason() == PETSc.KSP.ConvergedReason.DIVERGED_PCSETUP_FAILED:
+            # A failed factorization (e.g. MUMPS out of workspace on a wild iterate) would be kept and fail every
+            # later solve, the cut-back's smaller increments included: the next attempt factors afresh.
+            snes.getKSP().reset()
         history = snes.getConvergenceHistory()[0].copy()
         name = _SNES_REASONS.get(reason, str(reason))
         if reason > 0 and self.model.finite_strain:

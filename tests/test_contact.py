@@ -289,3 +289,31 @@ def test_contact_on_two_ranks_equals_one():
     np.testing.assert_allclose(forces[0], forces[1], rtol=1e-10, atol=1e-14)
     assert parallel.penetration() == pytest.approx(serial.penetration(), rel=1e-8)
     assert parallel.contact_area() == pytest.approx(serial.contact_area(), rel=1e-12)
+
+
+def test_a_failed_factorization_is_not_reused_by_the_cut_back():
+    """The pneumatic finger inflated to 20 kPa onto a ball in one increment: the full increment's Newton iterates run
+    deep into the ball and the LU factorization fails; the halved increments factor afresh and reach the state of
+    a run in four increments."""
+    import tomllib
+    from pathlib import Path
+
+    scenes = Path(__file__).resolve().parents[1] / "demos" / "scenes"
+    data = tomllib.loads((scenes / "finger_pneumatic.toml").read_text())
+    data["geometry"]["h"] = 0.004
+    data["fem"]["degree"] = 1
+    data["outputs"] = {"png": False, "xdmf": False}
+    data["loads"]["gravity"] = [9.81, 0.0, 0.0]
+    data["contacts"] = {"ball": {"group": "bottom", "obstacle": "sphere", "radius": 0.02,
+                                 "center": [0.08, 0.0, -0.0295]}}
+    data["probes"] = ["contact_force:ball"]
+    forces, cutbacks = [], []
+    for increments in (1, 4):
+        data["steps"] = [{"label": "rest", "gravity": 1.0},
+                         {"label": "p20kPa", "loads": {"chamber": 1.0}, "increments": increments}]
+        last = run_scene(parse_scene(data), comm=SELF).steps[-1]
+        forces.append(last.probes["contact_force:ball"])
+        cutbacks.append(last.cutbacks)
+    assert cutbacks[0] >= 1  # the failed full increment was cut back
+    np.testing.assert_allclose(forces[0], forces[1], rtol=1e-6, atol=1e-9)
+    assert forces[1][2] > 0.05
