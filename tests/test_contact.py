@@ -291,6 +291,7 @@ def test_contact_on_two_ranks_equals_one():
     assert parallel.contact_area() == pytest.approx(serial.contact_area(), rel=1e-12)
 
 
+@pytest.mark.slow  # ≈ 13 s wall (5 s CPU) on the shared 2-core box
 def test_a_failed_factorization_is_not_reused_by_the_cut_back():
     """The pneumatic finger inflated to 20 kPa onto a ball in one increment: the full increment's Newton iterates run
     deep into the ball and the LU factorization fails; the halved increments factor afresh and reach the state of
