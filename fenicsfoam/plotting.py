@@ -93,7 +93,7 @@ def _figure(title: str):
 
 
 def _obstacle_meshes(obstacles, points: np.ndarray) -> list[tuple]:
-    """pyvista meshes of rigid obstacles (:class:`fenicsfoam.contact.Obstacle`), planes sized to the body."""
+    """The pyvista meshes of rigid obstacles (:class:`fenicsfoam.contact.Obstacle`), planes sized to the body."""
     pyvista = _pyvista()
     size = float(np.ptp(points, axis=0).max()) * 1.5
     meshes = []
