@@ -788,34 +788,33 @@ def test_a_write_fault_fails_the_run_naming_the_file_and_leaves_no_partial_file(
         assert not (out / "summary.json").exists()
 
 
-@pytest.fixture
-def file_size_limit():
-    """Files this process writes may hold at most 64 bytes (restored afterwards); writes beyond fail with EFBIG."""
-    import resource
+def test_an_atomic_write_that_fails_names_the_file_and_keeps_the_previous_version(tmp_path):
+    import errno
 
-    previous = resource.getrlimit(resource.RLIMIT_FSIZE)
-    resource.setrlimit(resource.RLIMIT_FSIZE, (64, previous[1]))
-    yield
-    resource.setrlimit(resource.RLIMIT_FSIZE, previous)
-
-
-def test_an_atomic_write_that_fails_names_the_file_and_keeps_the_previous_version(tmp_path, file_size_limit):
     from foambase.errors import WriteError
-    from foambase.files import write_json_atomic
+    from foambase.files import atomic_open, write_json_atomic
 
     target = tmp_path / "calibration.json"
     write_json_atomic(target, {"E_solid": 1.0})
     with pytest.raises(WriteError, match=rf"^cannot write {target}: File too large \(EFBIG\)"):
-        write_json_atomic(target, {"E_solid": 2.0, "notes": "x" * 200})
+        with atomic_open(target) as f:
+            f.write('{"E_solid": 2.0')
+            raise OSError(errno.EFBIG, "File too large")  # as a write beyond the file-size limit fails
     assert json.loads(target.read_text()) == {"E_solid": 1.0}
     assert sorted(p.name for p in tmp_path.iterdir()) == ["calibration.json"]
 
 
-def test_homogenize_reports_a_write_fault_on_its_json(images, capsys, monkeypatch, file_size_limit):
-    monkeypatch.chdir(images)
-    status, err = status_of([homogenize_main, "--image", "porous.npy", "--out", "r.json"], capsys)
-    assert status == 1 and "cannot write r.json: File too large (EFBIG)" in err and "Traceback" not in err
-    assert not (images / "r.json").exists()
+LIMITED_HOMOGENIZE = LIMITED.replace("from fenicsfoam.cli import main", "from homogenization.cli import main")
+
+
+def test_homogenize_reports_a_write_fault_on_its_json(images):
+    """The JSON written beyond a 64-byte file-size limit (set in the subprocess, after MPI has started)."""
+    (images / "limited.py").write_text(LIMITED_HOMOGENIZE)
+    result = run([sys.executable, "limited.py", "64", "--image", "porous.npy", "--out", "r.json"], images)
+    assert result.returncode == 1, result.stderr
+    assert "homogenize: error: cannot write r.json: File too large (EFBIG)" in result.stderr
+    assert "Traceback" not in result.stderr and not (images / "r.json").exists()
+    assert not [p.name for p in images.iterdir() if p.name.startswith(".")]
 
 
 def test_a_grid_counts_a_repeated_value_once():
