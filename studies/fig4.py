@@ -155,6 +155,8 @@ def format_scaling(laws: list[dict]) -> str:
 # The figure
 # --------------------------------------------------------------------------------------------------
 _STYLE = {"cube": ("tab:blue", "-"), "equiaxed": ("tab:orange", "-"), "equiaxed_polyhedral": ("tab:green", "-")}
+#: candidate samples: open symbols in the colour of the table of the same members (edge struts: red)
+_CANDIDATE_COLOR = {"wall": "tab:green", "strut": "tab:orange", "edge": "tab:red"}
 
 
 def figure(path: Path, rows: list[dict], tables: dict, samples: list[dict]) -> Path:
@@ -189,7 +191,8 @@ def figure(path: Path, rows: list[dict], tables: dict, samples: list[dict]) -> P
                 for m in samples:
                     if float(m["gamma"]) == gamma:
                         mk = "^" if m.get("discretization", "rotated") == "hex8" else "v"
-                        ax.plot(float(m["density"]), float(m[QUANTITIES[q]]), mk, mfc="none", color="tab:red",
+                        ax.plot(float(m["measured_density"]), float(m[QUANTITIES[q]]), mk, mfc="none",
+                                color=_CANDIDATE_COLOR.get(m["candidate"], "tab:red"),
                                 label=f"{m['candidate']} {m.get('discretization', 'rotated')}")
                 if q in MODULI:
                     ax.set_yscale("log")
@@ -203,7 +206,8 @@ def figure(path: Path, rows: list[dict], tables: dict, samples: list[dict]) -> P
             handles.setdefault(lab, h)
     fig.legend(list(handles.values()), list(handles), loc="lower center", ncol=len(handles), fontsize=8)
     fig.suptitle("Fig. 4 of the paper (squares) against the shipped foam tables (lines ± seed std; points: "
-                 "single-density tables) — moduli / E_s, ν_s = 0.3, l = x", fontsize=10)
+                 "single-density tables) and candidate samples (▲ hex8, ▼ rotated; seed 0) — moduli / E_s, "
+                 "ν_s = 0.3, l = x", fontsize=10)
     fig.tight_layout(rect=(0, 0.05, 1, 0.96))
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=90)
@@ -427,9 +431,24 @@ def main(argv=None) -> int:
     uncovered = sorted({(r["series"], r["density"]) for r in rows} - {(c["series"], c["density"])
                                                                      for c in comparison if c["table"] == "cube"})
     print(f"Rows outside the cube table's range: {uncovered}")
+    law = {(l["series"], l["quantity"]): l for l in laws}
     for name, t in tables.items():
         if all(len(v) < 2 for v in t.grid.values()):
-            print(f"{name}: one density per γ, {t.grid}: compared through its nodes in the figure only")
+            print(f"{name}: one density per γ; its nodes against the paper's power law at the node's density "
+                  "(ours ± seed std (ours / law)):")
+            for node in table_nodes(t, name):
+                at = {q: law[(node["series"], q)]["C"] * node["density"] ** law[(node["series"], q)]["n"]
+                      for q in QUANTITIES}
+                print(f"  {node['series']} {node['density']:g}: " + "  ".join(
+                    f"{q} {node[q]:.3g} ± {node[q + '_std']:.2g} ({node[q] / at[q]:.2g})" for q in QUANTITIES))
+    if samples:
+        print("Candidate samples (value (value / the paper's power law at the sample's measured density)):")
+    for m in samples:
+        series = next(s for s, g in SERIES.items() if g == float(m["gamma"]))
+        d = float(m["measured_density"])
+        at = {q: law[(series, q)]["C"] * d ** law[(series, q)]["n"] for q in QUANTITIES}
+        print(f"  {m['candidate']} {m['discretization']} γ={float(m['gamma']):g} ρ={d:.4g} {m['resolution']}: "
+              + "  ".join(f"{q} {float(m[c]):.3g} ({float(m[c]) / at[q]:.2g})" for q, c in QUANTITIES.items()))
     path = figure(Path(args.figure) if args.figure else out / "fig4.png", rows, tables, samples)
     print(f"wrote {out / 'fig4_comparison.csv'}, {out / 'fig4_scaling.csv'}, {path}")
     for f in failures:
