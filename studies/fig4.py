@@ -221,22 +221,16 @@ def figure(path: Path, rows: list[dict], tables: dict, samples: list[dict]) -> P
 CANDIDATES = {"wall": "polyhedral", "strut": "euclidean", "edge": None}
 
 
-def gauge_edge_image(n_cells: int, density: float, gamma: float, seed: int, shape) -> tuple[np.ndarray, dict]:
-    """Voxels of struts along the edges of the polyhedral Voronoi diagram (a candidate, resolution-limited).
+def gauge_edge_skeleton(n_cells: int, gamma: float, seed: int, shape) -> tuple[np.ndarray, np.ndarray]:
+    """The skeleton of the polyhedral diagram's edges on a voxel grid: ``(points, box)``.
 
     The seeds, box (γ, 1, 1) and polytope (:func:`meshes.gauge.default_polytope` shrunk by γ along x) of
-    ``VoronoiFoam(n_cells, density, gamma, seed, box="equiaxed", distance="polyhedral")``. Every voxel centre gets
-    its gauge-nearest seed (exact: site images beyond the k examined are farther, :class:`meshes.gauge.GaugeWalls`);
-    the skeleton is the set of voxel-block corners whose 2×2×2 voxels hold at least three cells (the diagram's
-    edges, to within a voxel); the solid is the set of points within the Euclidean distance ``r`` of the skeleton,
-    ``r`` the ``density``-quantile of that distance over the foams' quasi-Monte-Carlo density sample. Returns the
-    bool image and ``{"radius", "measured_density", "edge_dir_abs_cos_x"}`` (the mean |cos| with x of the skeleton's
-    principal local directions is not computed; ``edge_fraction_x`` is the share of skeleton points whose
-    neighbours within 1.5 voxels lie along x).
+    ``VoronoiFoam(n_cells, ·, gamma, seed, box="equiaxed", distance="polyhedral")``. Every voxel centre gets its
+    gauge-nearest seed (exact: site images beyond the k examined are farther, :class:`meshes.gauge.GaugeWalls`);
+    the skeleton is the set of voxel corners whose 2×2×2 voxels hold at least three cells (the diagram's edges, to
+    within a voxel: at such a corner three seeds are gauge-nearest to within ``2 L |h|/2``, ``L`` the largest
+    ``|ν_i|``).
     """
-    from scipy.spatial import cKDTree
-
-    from meshes import foam as foam_mod
     from meshes.gauge import GaugeWalls, default_polytope
 
     box = np.array([gamma, 1.0, 1.0])
@@ -244,51 +238,63 @@ def gauge_edge_image(n_cells: int, density: float, gamma: float, seed: int, shap
     walls = GaugeWalls(seeds, box, default_polytope(), gamma)
     shape = tuple(shape)
     h = box / np.array(shape)
-    axes = [(np.arange(n) + 0.5) * hh for n, hh in zip(shape, h)]
-    centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-
-    def nearest(x):
-        lab = np.empty(len(x), dtype=np.int64)
-        for i0 in range(0, len(x), 1 << 13):
-            xs = x[i0:i0 + (1 << 13)]
-            k = 8
-            while True:
-                k = min(k, len(walls.images))
-                e, idx, d = walls.gauge_nearest(xs, k)
-                j = np.argmin(d, axis=1)
-                if k == len(walls.images) or np.all(e[:, -1] / walls.R >= d[np.arange(len(xs)), j]):
-                    break
-                k *= 2
-            lab[i0:i0 + len(xs)] = walls.image_seed[idx[np.arange(len(xs)), j]]
-        return lab
-
-    labels = nearest(centres).reshape(shape)
+    centres = _centres(shape, box)
+    labels = np.empty(len(centres), dtype=np.int64)
+    for i0 in range(0, len(centres), 1 << 13):
+        xs = centres[i0:i0 + (1 << 13)]
+        k = 8
+        while True:
+            k = min(k, len(walls.images))
+            e, idx, d = walls.gauge_nearest(xs, k)
+            j = np.argmin(d, axis=1)
+            if k == len(walls.images) or np.all(e[:, -1] / walls.R >= d[np.arange(len(xs)), j]):
+                break
+            k *= 2
+        labels[i0:i0 + len(xs)] = walls.image_seed[idx[np.arange(len(xs)), j]]
+    labels = labels.reshape(shape)
     corners = np.stack([np.roll(labels, (-a, -b, -c), axis=(0, 1, 2)) for a in (0, 1) for b in (0, 1)
                         for c in (0, 1)])
-    srt = np.sort(corners, axis=0)
-    distinct = 1 + np.count_nonzero(np.diff(srt, axis=0), axis=0)
+    distinct = 1 + np.count_nonzero(np.diff(np.sort(corners, axis=0), axis=0), axis=0)
     skeleton = np.argwhere(distinct >= 3) * h + h          # the block's centre: the shared voxel corner
-    skeleton = np.where(skeleton >= box, skeleton - box, skeleton)
+    return np.where(skeleton >= box, skeleton - box, skeleton), box
+
+
+def _centres(shape, box) -> np.ndarray:
+    h = box / np.array(shape)
+    axes = [(np.arange(n) + 0.5) * hh for n, hh in zip(shape, h)]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+def gauge_edge_image(n_cells: int, density: float, gamma: float, seed: int, shape) -> tuple[np.ndarray, dict]:
+    """Voxels of struts along the edges of the polyhedral Voronoi diagram (a candidate, resolution-limited).
+
+    The solid is the set of points within the Euclidean distance ``r`` of :func:`gauge_edge_skeleton`, ``r`` the
+    ``density``-quantile of that distance over the voxel centres (their distances to the corner lattice take few
+    values, so the voxel density is the target to within one shell of ties). Returns the bool image and
+    ``{"radius", "measured_density" (of the voxels), "continuous_density" (of the foams' quasi-Monte-Carlo sample
+    at r), "skeleton_points", "edge_dir_abs_cos_x"}`` (the mean |cos| with x of the principal direction of each
+    skeleton point's neighbours within 2.5 voxels).
+    """
+    from scipy.spatial import cKDTree
+
+    from meshes import foam as foam_mod
+
+    shape = tuple(shape)
+    skeleton, box = gauge_edge_skeleton(n_cells, gamma, seed, shape)
+    h = box / np.array(shape)
     tree = cKDTree(skeleton, boxsize=box)
-    sample = foam_mod._density_sample().reshape(-1, 3) * box
-    # r: the density-quantile over the voxel centres (their distances to the corner lattice take few values, so
-    # a quantile over a continuous sample would miss the density on the voxels by a shell); the voxel density
-    # (``measured_density``) is then the target to within one shell of ties
-    dc = tree.query(centres)[0]
+    dc = tree.query(_centres(shape, box))[0]
     rank = max(int(np.ceil(density * len(dc))) - 1, 0)
     r = float(np.partition(dc, rank)[rank])
     img = (dc <= r).reshape(shape)
-    ds = tree.query(sample)[0]
-    # skeleton directions: principal axis of each skeleton point's neighbours within 2.5 voxels
-    pairs = tree.query_ball_point(skeleton, 2.5 * float(h.max()))
+    ds = tree.query(foam_mod._density_sample().reshape(-1, 3) * box)[0]
     along_x = []
-    for i, nb in enumerate(pairs):
+    for i, nb in enumerate(tree.query_ball_point(skeleton, 2.5 * float(h.max()))):
         if len(nb) < 3:
             continue
         v = skeleton[nb] - skeleton[i]
         v -= np.rint(v / box) * box
-        w, vec = np.linalg.eigh(v.T @ v)
-        along_x.append(abs(vec[0, -1]))
+        along_x.append(abs(np.linalg.eigh(v.T @ v)[1][0, -1]))
     return img, {"radius": r, "measured_density": float(img.mean()), "continuous_density": float(np.mean(ds <= r)),
                  "skeleton_points": len(skeleton),
                  "edge_dir_abs_cos_x": float(np.mean(along_x)) if along_x else float("nan")}

@@ -75,3 +75,37 @@ def test_shipped_single_density_tables_are_compared_at_their_nodes():
     assert {(n["series"], n["density"]) for n in nodes} == {("transverse", 0.18), ("isotropic", 0.18)}
     iso = next(n for n in nodes if n["series"] == "isotropic")
     assert iso["E_x"] == pytest.approx(float(table.data["E1"][np.isclose(table.data["gamma"], 1.0)][0]))
+
+
+
+@pytest.mark.parametrize("gamma, shape", [(1.0, (24, 24, 24)), (0.1, (10, 50, 50))])
+def test_gauge_edge_skeleton_lies_where_three_cells_meet(gamma, shape):
+    """At every skeleton point three distinct seeds are gauge-nearest to within twice the gauge's largest change
+    between a voxel centre and its corner (brute force over 27 periodic images of each seed)."""
+    from meshes.gauge import default_polytope
+
+    skeleton, box = fig4.gauge_edge_skeleton(8, gamma, 3, shape)
+    assert len(skeleton) > 50
+    nu = default_polytope().deformed(gamma)
+    seeds = np.random.default_rng(3).random((8, 3)) * box
+    shifts = np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), axis=-1).reshape(-1, 3) * box
+    v = skeleton[:, None, None, :] - (seeds[None, :, None, :] + shifts[None, None, :, :])
+    d = np.sort(np.max(v @ nu.T, axis=-1).min(axis=2), axis=1)          # per seed, then sorted
+    # |g(a) − g(b)| ≤ max_i |ν_i · (a − b)| ≤ max_i Σ_k |ν_ik| h_k / 2 between a voxel centre and its corner
+    bound = 2.0 * float((np.abs(nu) @ (box / np.array(shape))).max()) / 2.0
+    assert np.all(d[:, 2] - d[:, 0] <= bound * (1 + 1e-12))
+    # and the skeleton is special: random points of the box have gaps beyond the bound and a median 2× larger
+    x = np.random.default_rng(0).random((500, 3)) * box
+    v = x[:, None, None, :] - (seeds[None, :, None, :] + shifts[None, None, :, :])
+    dx = np.sort(np.max(v @ nu.T, axis=-1).min(axis=2), axis=1)
+    assert np.mean(dx[:, 2] - dx[:, 0] > bound) > 0.2
+    assert np.median(d[:, 2] - d[:, 0]) < 0.5 * np.median(dx[:, 2] - dx[:, 0])
+
+
+def test_gauge_edge_image_holds_the_density_and_turns_into_the_layers_at_low_gamma():
+    img1, info1 = fig4.gauge_edge_image(8, 0.25, 1.0, 3, (24, 24, 24))
+    img01, info01 = fig4.gauge_edge_image(8, 0.25, 0.1, 3, (10, 50, 50))
+    for img, info in ((img1, info1), (img01, info01)):
+        assert abs(img.mean() - 0.25) < 0.03 and info["measured_density"] == img.mean()
+    # isotropic skeleton: mean |cos x| near 1/2; flattened cells: edges mostly in the y–z layers
+    assert 0.35 < info1["edge_dir_abs_cos_x"] < 0.65 and info01["edge_dir_abs_cos_x"] < 0.3
