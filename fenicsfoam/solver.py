@@ -618,8 +618,8 @@ class ElasticityProblem:
         the Dirichlet conditions, and of the adjoint equations (:mod:`fenicsfoam.sensitivity`). The rotation
         field is updated from ``u`` first. ``A`` is reused if given (the pattern of :meth:`snes`'s matrix).
         """
-        if A is None:
-            A = create_matrix(self._jacobian, self._A.getType())
+        if A is None:  # the solver's pattern (a cable's couplings included)
+            A = self._A.duplicate()
         self.u.x.scatter_forward()
         if self.rotation is not None:
             self.rotation.update()
@@ -680,6 +680,10 @@ class ElasticityProblem:
             snes.solve(None, self._x)
         self._sync(self._x)
         reason = snes.getConvergedReason()
+        if snes.getKSP().getConvergedReason() == PETSc.KSP.ConvergedReason.DIVERGED_PCSETUP_FAILED:
+            # A failed factorization (e.g. MUMPS out of workspace on a wild iterate) would be kept and fail every
+            # later solve, the cut-back's smaller increments included: the next attempt factors afresh.
+            snes.getKSP().reset()
         history = snes.getConvergenceHistory()[0].copy()
         name = _SNES_REASONS.get(reason, str(reason))
         if reason > 0 and self.model.finite_strain:

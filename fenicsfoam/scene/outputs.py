@@ -334,7 +334,23 @@ class XdmfSeries:
 def picture_step(u, out_dir: Path, scene: Scene, label: str) -> None:
     """``<label>.png``: the deformed shape at the end of a step (collective; rank 0 writes)."""
     from fenicsfoam.plotting import plot_displacement
-    plot_displacement(u, output_path(out_dir, f"{label}.png"), title=f"{scene.name}: {label}")
+    plot_displacement(u, output_path(out_dir, f"{label}.png"), title=f"{scene.name}: {label}",
+                      obstacles=_obstacles(scene, label))
+
+
+def _obstacles(scene: Scene, label: str) -> list:
+    """The scene's contact obstacles where they are at the end of the step ``label`` (none without contacts)."""
+    contacts = scene.loads.get("contact") or {}
+    if not contacts:
+        return []
+    from fenicsfoam.contact import OBSTACLES, Obstacle
+    factors = dict.fromkeys(contacts, 0.0)
+    for step in scene.steps:
+        factors.update({k: v for k, v in step.loads.items() if k in contacts})
+        if step.label == label:
+            break
+    return [Obstacle(spec["obstacle"], **{k: spec[k] for k in OBSTACLES[spec["obstacle"]]})
+            .moved([factors[name] * m for m in spec["motion"]]) for name, spec in contacts.items()]
 
 
 def picture_orientation(orientation, out_dir: Path, scene: Scene) -> None:

@@ -1,8 +1,8 @@
 """A scene's schema: the TOML read section by section and validated into a :class:`Scene` before anything is built.
 
 :func:`parse_scene` reads the sections in the order of the file's layout (``[geometry]``, ``[fem]``,
-``[regions.*]``, ``[[blends]]``, ``[orientation]``, ``[loads]``, ``[[steps]]``, ``probes``, ``[outputs]``), one reader
-each; the
+``[regions.*]``, ``[[blends]]``, ``[orientation]``, ``[loads]`` (with ``[contacts.*]``), ``[[steps]]``, ``probes``,
+``[outputs]``), one reader each; the
 first problem raises :class:`~fenicsfoam.scene.table.SceneError` naming its key path. Probes and load keys are
 validated by their entries in :mod:`fenicsfoam.scene.kinds`.
 """
