@@ -225,7 +225,7 @@ def test_ellipticity_over_compressions_with_the_paper_foam(cell):
     """Acoustic margins of uniaxial compressions along l and across l and simple shears, paper's foam:
     the SOFA element's (frozen-R) tangent keeps the linear law's margin G_l whatever the deformation;
     Bonet–Burton's margin equals that of an independent numpy tangent (finite differences), positive in every
-    compression along l, lost across l below a stretch of 0.75 and in tension or shear of a few per cent."""
+    compression along l (to 0.6), lost across l between stretches 0.8 and 0.7 and in tension or shear of 5 %."""
     msh, V, a = cell
     field = MaterialField.uniform(msh, PAPER_FOAM)
     axis = AXIS / np.linalg.norm(AXIS)
@@ -245,7 +245,7 @@ def test_ellipticity_over_compressions_with_the_paper_foam(cell):
     margins = [c.min_margin for c in bb.values()]
     along, across_, shears = margins[:6], margins[6:12], margins[12:]
     assert all(v > 0 for v in along[:5])
-    assert all(v > 0 for v in across_[:3]) and all(v < 0 for v in across_[4:])
+    assert all(v > 0 for v in across_[:3]) and all(v < 0 for v in across_[3:])
     assert along[5] < 0 and all(v < 0 for v in shears)
     assert all(c.lost_cells == 6 for c in bb.values() if c.min_margin < 0)
 
