@@ -284,3 +284,18 @@ def test_serial_equals_mpi(model):
     serial = small_solve(MPI.COMM_SELF, model)
     assert np.abs(parallel).max() > 1e-3
     np.testing.assert_allclose(parallel, serial, rtol=1e-8, atol=1e-10)
+
+
+@pytest.mark.slow
+def test_bonet_burton_adjoint_gradient_is_second_order_accurate():
+    """The design code's adjoint gradient with the hyperelastic model (isotropic beam: compressible neo-Hooke; the TI
+    foams lose ellipticity under the beam's own weight with this model): Taylor remainders of order 2 in E_solid."""
+    from test_sensitivity import SIGNIFICANT, assert_second_order, scene, taylor
+
+    from fenicsfoam.design import SceneDesign
+
+    design = SceneDesign(scene("beam_iso", 0.0075, table="cube", **{"fem.model": "bonet_burton"}))
+    base = design.solve()
+    gradients = design.gradient(list(base), ["E_solid"])
+    slopes, remainders = taylor(design, base, gradients, "E_solid", 2e6)
+    assert_second_order(slopes, remainders, SIGNIFICANT, "bonet_burton E_solid")
