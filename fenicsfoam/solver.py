@@ -24,7 +24,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -139,12 +139,13 @@ class StepStats:
     reasons: list[str] = field(default_factory=list)            #: SNES converged reason, per converged increment
     min_det_F: float = float("nan")      #: smallest det F at quadrature points and vertices at the end
     wall_s: float = 0.0
+    cpu_s: float = 0.0                   #: CPU time of this process (all its threads) during the step
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict."""
         return {"label": self.label, "newton_iterations": self.newton_iterations, "increments": self.increments,
                 "cutbacks": self.cutbacks, "residuals": self.residuals, "reasons": self.reasons,
-                "min_det_F": self.min_det_F, "wall_s": self.wall_s}
+                "min_det_F": self.min_det_F, "wall_s": self.wall_s, "cpu_s": self.cpu_s}
 
 
 @dataclass(frozen=True)
@@ -233,6 +234,8 @@ class ElasticityProblem:
 
     #: Residual norms below this fraction of ``k ‖x‖`` count as converged (see ``_convergence_test``).
     _ROUNDOFF_FLOOR = 1e-13
+    #: Seconds between two progress lines of one Krylov solve (:attr:`progress`).
+    KRYLOV_REPORT_S = 2.0
 
     def __init__(self, mesh: Mesh, material: MaterialField, *, orientation: fem.Function | None = None,
                  model: str | Model = "corotational", degree: int = 1, gravity: Sequence[float] = (0.0, 0.0, -9.81),
@@ -275,6 +278,8 @@ class ElasticityProblem:
         self._factors = {}
         for load in loads:
             load.setup(self.V)
+            if hasattr(load, "bind_stress"):  # contact (Nitsche): the body's traction on its facets
+                load.bind_stress(model, material, orientation)
             self._factors[load.name] = factor = fem.Constant(mesh, 0.0)
             term = load.residual(self.u, v, factor, model.finite_strain)
             if term is not None:
@@ -318,6 +323,11 @@ class ElasticityProblem:
             self._A = create_matrix(self._jacobian, self._matrix_type(prefix))
         self._A.setNearNullSpace(rigid_body_modes(self.V))
         self._bc_scale = self._mean_diagonal_stiffness()
+        #: called with a line of progress at every Newton iteration (and every few seconds of a Krylov solve), e.g.
+        #: ``step gravity, load factor 0.5: Newton iteration 2, residual 1.234e-05``; None: silent
+        self.progress: Callable[[str], None] | None = None
+        self._where: tuple[str, float, int] = ("", 0.0, 0)  # step label, load factor tried, Newton iteration
+        self._krylov_reported = 0.0
         self._snes = self._create_snes(prefix)
         #: accumulated wall time (s) of residual and Jacobian evaluations (assembly + rotation updates)
         self.timings = {"residual": 0.0, "jacobian": 0.0}
@@ -377,7 +387,26 @@ class ElasticityProblem:
             snes.setFromOptions()
         snes.setConvergenceHistory(reset=True)
         snes.setConvergenceTest(self._convergence_test)
+        # Python monitors: progress, and a point where Python runs (and a SIGINT/SIGTERM handler with it) at every
+        # Newton and Krylov iteration, so that an interruption stops a long iterative solve within one iteration.
+        snes.setMonitor(self._newton_monitor)
+        snes.getKSP().setMonitor(self._krylov_monitor)
         return snes
+
+    def _newton_monitor(self, snes: PETSc.SNES, iteration: int, fnorm: float) -> None:
+        label, s, _ = self._where
+        self._where = (label, s, iteration)
+        self._krylov_reported = time.monotonic()
+        if self.progress is not None:
+            self.progress(f"step {label}, load factor {s:.4g}: Newton iteration {iteration}, residual {fnorm:.4e}")
+
+    def _krylov_monitor(self, ksp: PETSc.KSP, iteration: int, rnorm: float) -> None:
+        now = time.monotonic()
+        if self.progress is not None and iteration > 0 and now - self._krylov_reported >= self.KRYLOV_REPORT_S:
+            self._krylov_reported = now
+            label, s, newton = self._where
+            self.progress(f"step {label}, load factor {s:.4g}: Newton iteration {newton}, linear iteration "
+                          f"{iteration}, linear residual {rnorm:.3e}")
 
     def _convergence_test(self, snes: PETSc.SNES, it: int, norms: tuple[float, float, float]) -> int:
         """PETSc's default test, with a round-off floor: converged when ``‖F‖ <= 1e-13 k ‖x‖``.
@@ -668,7 +697,7 @@ class ElasticityProblem:
             last converged state.
 
         """
-        t0 = time.perf_counter()
+        t0, cpu0 = time.perf_counter(), time.process_time()
         stats = StepStats(step.label)
         start = self.loads
         target = start.target(step)
@@ -678,6 +707,7 @@ class ElasticityProblem:
         converged_u = self.u.vector.copy()
         while target != start and s < 1.0:
             s_try = 1.0 if s + ds > 1.0 - 1e-12 else s + ds
+            self._where = (step.label, s_try, 0)
             self._apply_loads(start.towards(target, s_try))
             ok, reason, iterations, history = self._newton()
             logger.info("step %s, load factor %.4g: %s after %d Newton iterations",
@@ -705,6 +735,7 @@ class ElasticityProblem:
             self.rotation.update()
         stats.min_det_F = self.min_det_F()
         stats.wall_s = time.perf_counter() - t0
+        stats.cpu_s = time.process_time() - cpu0
         return stats
 
     def ellipticity_margin(self, directions: int = 256, refinements: int = 10) -> EllipticityCheck:

@@ -17,7 +17,7 @@ MUTATIONS: tuple[Mutation, ...] = (
         "the table's TI fit taken about z instead of the foam's distinct axis x",
         targets=("tests/test_tables.py::test_sample_row_fits_ti_about_the_foams_x_axis",)),
     Mutation(
-        "paper-fit-nu-tl", "fenicsfoam/materials.py",
+        "paper-fit-nu-tl", "fenicsfoam/material/foam.py",
         'nu_tl=(q("nu21") + q("nu31")) / 2',
         'nu_tl=(q("nu12") + q("nu13")) / 2',
         '`fit="paper"`: ν_tl from ν12, ν13 instead of ν21, ν31',
@@ -86,9 +86,9 @@ MUTATIONS: tuple[Mutation, ...] = (
         "TI compliance S66 = 1/(2 G12): a wrong Voigt shear factor",
         targets=("tests/test_tensors.py",)),
     Mutation(
-        "spencer-beta", "fenicsfoam/materials.py",
-        '"beta": C[0, 0] + C[2, 2] - 2.0 * C[0, 2] - 4.0 * C[3, 3],',
-        '"beta": C[0, 0] + C[2, 2] - 2.0 * C[0, 2] - 2.0 * C[3, 3],',
+        "spencer-beta", "fenicsfoam/material/moduli.py",
+        '"beta": C[..., 0, 0] + C[..., 2, 2] - 2.0 * C[..., 0, 2] - 4.0 * C[..., 3, 3]}',
+        '"beta": C[..., 0, 0] + C[..., 2, 2] - 2.0 * C[..., 0, 2] - 2.0 * C[..., 3, 3]}',
         "Spencer modulus β with 2 C44 instead of 4 C44",
         targets=("tests/test_materials.py",)),
     # ---- calibration, uncertainty ----------------------------------------------------------------------------
@@ -210,8 +210,8 @@ MUTATIONS: tuple[Mutation, ...] = (
         targets=("tests/test_fem_rve.py",)),
     Mutation(
         "scene-servo-degrees", "fenicsfoam/scene/build.py",
-        '{f"servo{i}": math.radians(a) for i, a in enumerate(s.servo_deg)}',
-        '{f"servo{i}": math.radians(a) / 2 for i, a in enumerate(s.servo_deg)}',
+        'angles = {name: math.radians(servos[name]["setup_deg"] + a) for name, a in turned.items()}',
+        'angles = {name: math.radians(servos[name]["setup_deg"] + a) / 2 for name, a in turned.items()}',
         "scene servo angles halved in the conversion to radians",
         targets=("tests/test_scene.py",)),
     Mutation(
