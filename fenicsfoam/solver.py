@@ -346,9 +346,10 @@ class ElasticityProblem:
           or the Newton correction is below ``snes_stol`` of the solution.
         * ``mat_type`` (read by this class, not by PETSc): ``None`` picks ``baij`` (3×3 blocks, half the
           assembly time of ``aij``) for direct solvers and ``aij`` otherwise (GAMG needs it).
-        * Large problems: ``{"ksp_type": "cg", "pc_type": "gamg", "ksp_rtol": 1e-8}`` (``gmres`` for the
-          corotational model with a TI material, whose exact tangent is not symmetric); the rigid-body
-          near-nullspace is always attached to the Jacobian. See ``bench/bench_newton.py`` for when it wins.
+        * The iterative alternative: ``{"ksp_type": "cg", "pc_type": "gamg", "ksp_rtol": 1e-8}`` (``gmres`` for
+          the corotational model, whose exact tangent is not symmetric); the rigid-body near-nullspace is always
+          attached to the Jacobian. Measured, it is slower than LU at every size but needs far less memory: scenes
+          take it when LU would not fit (:mod:`fenicsfoam.sizing`, ``bench/bench_large_runs.py``).
         """
         return {
             "snes_type": "newtonls",

@@ -47,8 +47,9 @@ from foambase.files import TEMPORARY, check_output_dir, write_json_atomic, write
 from foambase.mpi import on_rank0
 from foambase.signals import discard_temporary, register_temporary
 
-__all__ = ["FIXED_OUTPUTS", "LOG_FILE", "MARGIN_DIRECTIONS", "Progress", "MARGIN_MAX_CELLS", "STATUSES", "FieldSeries", "RunFolder", "SceneResult", "StepResult", "XdmfSeries", "output_path",
-           "picture_orientation", "picture_step", "probes_csv", "series_file", "write_summary"]
+__all__ = ["FIXED_OUTPUTS", "LOG_FILE", "MARGIN_DIRECTIONS", "MARGIN_MAX_CELLS", "STATUSES", "FieldSeries",
+           "Progress", "RunFolder", "SceneResult", "StepResult", "XdmfSeries", "output_path", "picture_orientation",
+           "picture_step", "probes_csv", "series_file", "write_summary"]
 
 logger = logging.getLogger(__name__)
 
