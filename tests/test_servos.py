@@ -118,6 +118,19 @@ def test_servo_keys_are_checked_before_any_work():
         parse_scene(bad)
 
 
+def test_the_sofa_element_takes_the_options_of_its_krylov_solver():
+    """``corotational_sofa`` solves with GMRES (an approximate tangent): its scenes may set Krylov options, which a
+    scene with the LU solver of an exact tangent refuses before any work."""
+    from fenicsfoam.scene.run import check_solver_options
+    data = scene("tripod_case_b")
+    data["fem"]["petsc"] = {"ksp_max_it": 1000}
+    data["fem"]["model"] = "corotational_sofa"
+    check_solver_options(parse_scene(data))
+    data["fem"]["model"] = "corotational"
+    with pytest.raises(SceneError, match=r"^fem\.petsc\.ksp_max_it: PETSc does not use this option"):
+        check_solver_options(parse_scene(data))
+
+
 def _case_a(offset_deg: float) -> dict:
     """Case A as built with each arm's l axis at ``offset_deg`` from the arm (counter-clockwise seen from above)."""
     data = scene("tripod_case_a")
