@@ -86,6 +86,7 @@ __all__ = [
     "SaintVenantKirchhoff",
     "as_model",
     "bonet_burton_energy",
+    "corotated_strain",
     "corotational_rotation_tangent",
     "edge_frame",
     "MaterialField",
@@ -399,6 +400,11 @@ class SaintVenantKirchhoff(Model):
         return deformation_gradient(u) * stress(self.strain(u), material, orientation)
 
 
+def corotated_strain(R, u):
+    """``sym(RᵀF) - I``: the strain of ``u`` in the frame turned back by the rotation ``R``."""
+    return ufl.sym(R.T * deformation_gradient(u)) - ufl.Identity(len(u))
+
+
 class Corotational(Model):
     """Corotational: ``ε_c = sym(RᵀF) - I``, ``P = R σ(ε_c)`` with ``R`` held fixed in ``ufl.derivative``."""
 
@@ -406,7 +412,7 @@ class Corotational(Model):
         """``ε_c = sym(RᵀF) - I``."""
         if rotation is None or isinstance(rotation, EdgeRotation):
             raise InputError("the corotational model needs a PolarRotation of the displacement")
-        return ufl.sym(rotation.R.T * deformation_gradient(u)) - ufl.Identity(len(u))
+        return corotated_strain(rotation.R, u)
 
     def first_piola_kirchhoff(self, u, material, orientation, rotation=None):
         """``P = R σ(ε_c)``."""
@@ -435,7 +441,7 @@ class CorotationalSOFA(Corotational):
         if not isinstance(rotation, EdgeRotation):
             raise InputError("the corotational_sofa model needs an EdgeRotation of the displacement "
                              "(model.rotation_field(u, quadrature_degree))")
-        return ufl.sym(rotation.R.T * deformation_gradient(u)) - ufl.Identity(len(u))
+        return corotated_strain(rotation.R, u)
 
     def rotation_tangent(self, u, du, material, orientation, rotation):
         """Nothing: the tangent is the derivative at frozen ``R``, as in SOFA."""
