@@ -69,7 +69,8 @@ class GatheredMesh:
     cells: np.ndarray       #: (m, k) node numbers per cell, VTK order (corners first), row = input cell number
     cell_type: int          #: VTK cell type (10: tetra; 24: quadratic tetra, 10 nodes for P2)
 
-    def to_pyvista(self, point_data: dict[str, np.ndarray] | None = None, cell_data: dict[str, np.ndarray] | None = None):
+    def to_pyvista(self, point_data: dict[str, np.ndarray] | None = None,
+                   cell_data: dict[str, np.ndarray] | None = None):
         """A ``pyvista.UnstructuredGrid`` of the mesh with the given point and cell data."""
         import pyvista
         k = self.cells.shape[1]
@@ -241,9 +242,14 @@ def read_solution(out_dir: str | os.PathLike) -> Solution:
     if not path.is_file():
         raise InputError(f"{path} does not exist: run the scene with [outputs] xdmf = true (the default) and an "
                          "output directory")
-    with np.load(path, allow_pickle=False) as data:
-        return Solution(points=data["points"], cells=data["cells"], cell_type=int(data["cell_type"]),
-                        labels=tuple(str(label) for label in data["labels"]), displacements=data["displacements"])
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return Solution(points=data["points"], cells=data["cells"], cell_type=int(data["cell_type"]),
+                            labels=tuple(str(label) for label in data["labels"]),
+                            displacements=data["displacements"])
+    except (OSError, ValueError, KeyError, EOFError, TypeError, AttributeError) as exc:  # not a run's archive
+        raise InputError(f"{path}: not a solution archive written by a scene run ({type(exc).__name__}: "
+                         f"{exc})") from exc
 
 
 class SolutionWriter:

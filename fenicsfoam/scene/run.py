@@ -55,10 +55,17 @@ logger = logging.getLogger(__name__)
 
 
 def check_solver_options(scene: Scene) -> None:
-    """The scene's ``[fem.petsc]`` options, before any work: :class:`SceneError` naming a refused or unread option."""
+    """The scene's ``[fem.petsc]`` options, before any work: :class:`SceneError` naming a refused or unread option.
+
+    Checked against the solver the scene's model gets: a model without an exact tangent (``corotational_sofa``)
+    solves with GMRES (:attr:`ElasticityProblem.APPROXIMATE_TANGENT_OPTIONS`), whose options it then reads.
+    """
+    from fenicsfoam.constitutive import as_model
+    defaults = ElasticityProblem.default_options()
+    if not as_model(scene.model).exact_tangent:
+        defaults.update(ElasticityProblem.APPROXIMATE_TANGENT_OPTIONS)
     try:
-        check_options(scene.petsc, PETSC_PREFIX, ElasticityProblem.default_options(), where="fem.petsc",
-                      own=("mat_type",))
+        check_options(scene.petsc, PETSC_PREFIX, defaults, where="fem.petsc", own=("mat_type",))
     except InputError as exc:
         raise SceneError(str(exc)) from exc
 
@@ -110,8 +117,9 @@ def _sizer(scene: Scene, comm, solver: str, force: bool, announce):
         announce(text)
         if not estimate.fits and not force:
             raise sizing.TooLargeError(f"{text}: this run would not fit in the memory available; make the mesh "
-                                       "coarser ([geometry] h), use degree = 1 or more memory, or force it "
-                                       "(--force; run_scene(force=True))")
+                                       f"coarser ([geometry] h){', use degree = 1' if scene.degree == 2 else ''}, "
+                                       "run on a machine with more memory, or force it (--force; "
+                                       "run_scene(force=True))")
         if own or kind == "direct":
             return {}
         return sizing.solver_options(kind, as_model(scene.model).symmetric_tangent)
@@ -127,7 +135,7 @@ def _value(value: Any) -> float | list[float]:
 
 
 def run_scene(source: str | os.PathLike | Mapping[str, Any] | Scene, out_dir: str | os.PathLike | None = None, *,
-              comm=None, solver: str = "auto", force: bool = False, echo=None) -> SceneResult:
+              comm=None, solver: str = "auto", force: bool = False, echo=None, wait: bool = False) -> SceneResult:
     """Build a scene, run its load schedule, evaluate its probes after every step and write its outputs.
 
     Parameters
@@ -150,6 +158,9 @@ def run_scene(source: str | os.PathLike | Mapping[str, Any] | Scene, out_dir: st
     echo
         Called on rank 0 with the size estimate before assembly and, after a failure or an interruption, with the
         table of the steps done (the command line passes ``print``); None: the log only.
+    wait
+        If another run is writing into ``out_dir`` (it holds the folder's lock), wait for it to end instead of
+        refusing (:class:`InputError`).
 
     Returns
     -------
@@ -175,7 +186,7 @@ def run_scene(source: str | os.PathLike | Mapping[str, Any] | Scene, out_dir: st
     start = time.perf_counter()
     scene = source if isinstance(source, Scene) else load_scene(source)
     sizing.choose_solver(solver, 0)  # a bad name fails before any work
-    folder = None if out_dir is None else RunFolder(out_dir, comm)
+    folder = None if out_dir is None else RunFolder(out_dir, comm, wait=wait)
     if folder is not None:
         folder.check()
     check_solver_options(scene)
@@ -219,12 +230,13 @@ def run_scene(source: str | os.PathLike | Mapping[str, Any] | Scene, out_dir: st
     register_last_resort(last_resort)
     writing = out is not None and scene.xdmf
     layout = NodeLayout(problem.V) if writing else None
-    series = XdmfSeries(comm, out, problem.V.mesh) if writing else None
-    solution = SolutionWriter(problem.V, out, layout) if writing else None
-    fields = FieldSeries(model, scene, out, layout) if writing else None
+    series = solution = fields = None
     pictures = scene.png if out is not None else ()
     failure = None
-    try:
+    try:  # the writers too: one that cannot write (disk full) fails the run like any other error
+        series = XdmfSeries(comm, out, problem.V.mesh) if writing else None
+        solution = SolutionWriter(problem.V, out, layout) if writing else None
+        fields = FieldSeries(model, scene, out, layout) if writing else None
         for index, step in enumerate(model.steps):
             current[0] = step.label
             progress.status(f"step {index + 1}/{len(model.steps)} {step.label}: started")
