@@ -18,9 +18,16 @@ choice, checked by ``resolution``.
     three members a Richardson estimate (``q = q0 + c h^p`` through the three finest,
     :func:`homogenization.convergence.richardson`, in the x spacing) with the remaining bias of each level.
 ``table``
-    One grid per γ (``--grid``, the last given for a γ wins), seeds ``--seeds`` (default 0 1 2): writes the table
-    ``equiaxed_polyhedral`` (:attr:`SweepSettings.name`) with its samples and provenance under ``--out``, and with
-    ``--ship`` into ``homogenization/data``. Exits 1 if a sample misses its density by more than 0.002.
+    Every ``--density`` × one grid per γ (``--grid``, the last given for a γ wins), seeds ``--seeds`` (default
+    0 1 2), in one resumable run: with ``--reference-density REF`` each ``--grid`` is the grid at ``REF``, scaled
+    at the other densities by :func:`homogenization.tables.scaled_resolution` (constant voxels across a wall).
+    Writes one table ``equiaxed_polyhedral`` (``_hex8`` with ``--discretization hex8``,
+    :attr:`SweepSettings.name`) over the whole grid with its samples and provenance (every node's settings)
+    under ``--out``, and with ``--ship`` into ``homogenization/data``. Exits 1 if a sample misses its density by
+    more than 0.002.
+``merge``
+    ``--from DIR [DIR ...]``: the tables of earlier ``table`` runs merged into one under ``--out``
+    (:func:`homogenization.tables.merge_tables`; refuses a (density, γ) node at different settings in two runs).
 
 Run: ``OMP_NUM_THREADS=1 python studies/wall_foam.py table --grid 0.1=60x300x300 --grid 1=96 --cache
 out/wall-cache --out out/wall-table`` (``mpirun -n 2`` deals the samples to two ranks; with ``--distribute fft``
@@ -42,7 +49,6 @@ from mpi4py import MPI
 
 from homogenization import tables
 from homogenization.convergence import richardson
-from meshes.foam import VoronoiFoam
 
 MODULI = ("E1", "E2", "E3", "G23", "G13", "G12", "ti_E_t", "ti_E_l", "ti_G_l", "iso_E")
 
@@ -159,8 +165,8 @@ def table(a, comm) -> int:
     for (d, g), s in sorted(node.items()):
         key = f"density={d:g},gamma={g:g}"
         settings[key] = tables.settings_dict(s) | {"seeds": seeds.get(g, a.seeds)}
-        half = VoronoiFoam(a.cells, d, g, seed=0, box="equiaxed", distance="polyhedral").radius
-        across[key] = 2 * half / spacing(g, s.resolution if not s.cubic else int(s.resolution))[0]
+        half = np.mean([r["radius"] for r in rows if (r["density"], r["gamma"]) == (d, g)])  # over the seeds
+        across[key] = float(2 * half / spacing(g, s.resolution)[0])
     provenance = {"command": launcher + " ".join(["python", "studies/wall_foam.py", *sys.argv[1:]]),
                   "date": datetime.now(UTC).isoformat(timespec="seconds"), "ranks": comm.size,
                   "wall_s_this_run": time.perf_counter() - start,
