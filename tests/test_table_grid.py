@@ -87,3 +87,20 @@ def test_merge_refuses_a_node_at_other_settings_and_names_it(sweep):
     struts_in_box = [r | {"box": "equiaxed", "density": 0.5} for r in rows[:1]]
     with pytest.raises(InputError, match="different tables"):
         tables.merge_samples([("base", rows), ("box", struts_in_box)])
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("distribute", ["samples", pytest.param("fft", marks=pytest.mark.slow)])
+def test_per_node_settings_under_mpi_give_the_serial_rows(tmp_path, distribute):
+    """Two nodes at their own grids, dealt to the ranks or each on both: the rows of one rank alone."""
+    comm = MPI.COMM_WORLD
+    root = comm.bcast(tmp_path if comm.rank == 0 else None)
+    samples = tables.grid((0.25, 0.3), (1.0,), (1,))
+    rows = tables.run_sweep(samples, node_settings, root / "mpi", comm, progress=False, distribute=distribute)
+    if comm.rank == 0:
+        serial = tables.run_sweep(samples, node_settings, root / "serial", MPI.COMM_SELF, progress=False)
+        assert [r["resolution"] for r in rows] == [16, 13]
+        for got, want in zip(rows, serial, strict=True):
+            assert got["C11"] == pytest.approx(want["C11"], rel=1e-8)  # the distributed FFT: round-off through CG
+            assert got["G23"] == pytest.approx(want["G23"], rel=1e-8)
+    comm.barrier()
