@@ -45,8 +45,9 @@ Stresses are ``ufl.diff`` of ψ with respect to the strain made a ``ufl.variable
   volumetric term is ``λ/2 (ln J)²``; ``(J - 1)²`` has the same small-strain limit and is convex in ``J``.) It is
   not polyconvex: the term ``-a/2 I₅`` with ``a = μ_T - μ_L > 0`` softens the material under stretch along and
   across ``l`` and under shear, and for the project's foams (``μ_L`` a few per cent of ``μ_T``) strong
-  ellipticity is lost at a 2 % stretch or a 5 % shear (``tests/test_models.py``), earlier than ``corotational``
-  in tension and later in transverse compression.
+  ellipticity is lost at a 1–2 % stretch or a 2–5 % shear (``tests/test_models.py``,
+  ``studies/ellipticity_models.py``), where ``corotational`` stays elliptic; ``corotational`` loses it first in
+  compression across ``l``.
 
 No polyconvex energy built from the usual TI invariants (``I₁``, ``I₂ = tr cof C``, ``J``, ``I₄``,
 ``K₃ = a·cof C a``, ``|F(I - A)|²``, ``|cof F (I - A)|²`` through convex non-decreasing functions, and convex
@@ -85,6 +86,7 @@ __all__ = [
     "SaintVenantKirchhoff",
     "as_model",
     "bonet_burton_energy",
+    "corotated_strain",
     "corotational_rotation_tangent",
     "edge_frame",
     "MaterialField",
@@ -398,6 +400,11 @@ class SaintVenantKirchhoff(Model):
         return deformation_gradient(u) * stress(self.strain(u), material, orientation)
 
 
+def corotated_strain(R, u):
+    """``sym(RᵀF) - I``: the strain of ``u`` in the frame turned back by the rotation ``R``."""
+    return ufl.sym(R.T * deformation_gradient(u)) - ufl.Identity(len(u))
+
+
 class Corotational(Model):
     """Corotational: ``ε_c = sym(RᵀF) - I``, ``P = R σ(ε_c)`` with ``R`` held fixed in ``ufl.derivative``."""
 
@@ -405,7 +412,7 @@ class Corotational(Model):
         """``ε_c = sym(RᵀF) - I``."""
         if rotation is None or isinstance(rotation, EdgeRotation):
             raise InputError("the corotational model needs a PolarRotation of the displacement")
-        return ufl.sym(rotation.R.T * deformation_gradient(u)) - ufl.Identity(len(u))
+        return corotated_strain(rotation.R, u)
 
     def first_piola_kirchhoff(self, u, material, orientation, rotation=None):
         """``P = R σ(ε_c)``."""
@@ -434,7 +441,7 @@ class CorotationalSOFA(Corotational):
         if not isinstance(rotation, EdgeRotation):
             raise InputError("the corotational_sofa model needs an EdgeRotation of the displacement "
                              "(model.rotation_field(u, quadrature_degree))")
-        return ufl.sym(rotation.R.T * deformation_gradient(u)) - ufl.Identity(len(u))
+        return corotated_strain(rotation.R, u)
 
     def rotation_tangent(self, u, du, material, orientation, rotation):
         """Nothing: the tangent is the derivative at frozen ``R``, as in SOFA."""

@@ -22,7 +22,8 @@ The layouts along and across the arms are mirror symmetric and cannot twist (che
 the isotropic silicone plate neither. Exit status 1 if a check fails.
 
 Run: `python studies/tripod_as_built.py --out out/tripod_as_built [--h 0.008 0.0052] [--ci]` (``--ci``: case A
-along and off the arms at h = 10 mm).
+along and off the arms at h = 10 mm); ``--models M ...`` runs instead cases A (30° layout), B and silicone with each
+listed model.
 """
 
 from __future__ import annotations
@@ -87,7 +88,10 @@ def run(name: str, h: float, model: str, layout: str | None, comm, clamp: str = 
     return row
 
 
-def cases(sizes, ci: bool):
+def cases(sizes, ci: bool, models: list[str] | None = None):
+    if models:  # the scenes with each listed model: case A (l 30° from the arms, box clamp), case B, silicone
+        return [(name, h, model, "from +x" if name == "tripod_case_a" else None, "box") for h in sizes
+                for model in models for name in ("tripod_case_a", "tripod_case_b", "tripod_silicone")]
     if ci:
         return [("tripod_case_a", sizes[0], "corotational", layout, "box") for layout in ("along arms", "from +x")]
     out = []
@@ -119,10 +123,10 @@ def check(rows: list[dict]) -> list[str]:
     return failures
 
 
-def main(out: Path, sizes, ci: bool) -> int:
+def main(out: Path, sizes, ci: bool, models: list[str] | None = None) -> int:
     comm = MPI.COMM_WORLD
     rows = []
-    for name, h, model, layout, clamp in cases(sizes, ci):
+    for name, h, model, layout, clamp in cases(sizes, ci, models):
         rows.append(run(name, h, model, layout, comm, clamp))
         if comm.rank == 0:
             r = rows[-1]
@@ -148,7 +152,9 @@ if __name__ == "__main__":
     parser.add_argument("--out", type=Path, default=Path("out/tripod_as_built"))
     parser.add_argument("--h", type=float, nargs="+", default=[0.008, 0.0052], help="element sizes (m), P1")
     parser.add_argument("--ci", action="store_true", help="case A along and 30° off the arms at h = 10 mm")
+    parser.add_argument("--models", nargs="+", help="instead of the default rows: cases A, B and silicone with "
+                        "each of these models (fenicsfoam.constitutive.MODELS)")
     parser.add_argument("-v", "--verbose", action="count", default=0)
     args = parser.parse_args()
     setup_logging(args.verbose)
-    sys.exit(main(args.out, [0.010] if args.ci else args.h, args.ci))
+    sys.exit(main(args.out, [0.010] if args.ci else args.h, args.ci, args.models))

@@ -55,10 +55,17 @@ logger = logging.getLogger(__name__)
 
 
 def check_solver_options(scene: Scene) -> None:
-    """The scene's ``[fem.petsc]`` options, before any work: :class:`SceneError` naming a refused or unread option."""
+    """The scene's ``[fem.petsc]`` options, before any work: :class:`SceneError` naming a refused or unread option.
+
+    Checked against the solver the scene's model gets: a model without an exact tangent (``corotational_sofa``)
+    solves with GMRES (:attr:`ElasticityProblem.APPROXIMATE_TANGENT_OPTIONS`), whose options it then reads.
+    """
+    from fenicsfoam.constitutive import as_model
+    defaults = ElasticityProblem.default_options()
+    if not as_model(scene.model).exact_tangent:
+        defaults.update(ElasticityProblem.APPROXIMATE_TANGENT_OPTIONS)
     try:
-        check_options(scene.petsc, PETSC_PREFIX, ElasticityProblem.default_options(), where="fem.petsc",
-                      own=("mat_type",))
+        check_options(scene.petsc, PETSC_PREFIX, defaults, where="fem.petsc", own=("mat_type",))
     except InputError as exc:
         raise SceneError(str(exc)) from exc
 

@@ -119,8 +119,8 @@ MUTATIONS: tuple[Mutation, ...] = (
         targets=("tests/test_constitutive.py", "tests/test_solver.py")),
     Mutation(
         "corotational-r-transposed", "fenicsfoam/constitutive.py",
-        "return ufl.sym(rotation.R.T * deformation_gradient(u)) - ufl.Identity(len(u))",
-        "return ufl.sym(rotation.R * deformation_gradient(u)) - ufl.Identity(len(u))",
+        "return ufl.sym(R.T * deformation_gradient(u)) - ufl.Identity(len(u))",
+        "return ufl.sym(R * deformation_gradient(u)) - ufl.Identity(len(u))",
         "corotational strain sym(R F) instead of sym(Rᵀ F)",
         targets=("tests/test_constitutive.py", "tests/test_solver.py")),
     Mutation(
