@@ -43,6 +43,7 @@ import re
 import time
 from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass
+from datetime import UTC, datetime
 from importlib import metadata
 from pathlib import Path
 
@@ -233,6 +234,48 @@ def resolution_for_strut(settings: SweepSettings, density: float, gamma: float, 
     return int(max(8, multiple * math.ceil(voxels / (width * multiple) - 1e-9)))
 
 
+def _cubic_multiple(box: str, gamma: float) -> int:
+    """The smallest ``N`` step that gives cubic voxels in the sweep's box at ``gamma`` (1 for the unit cube)."""
+    if box == "cube":
+        return 1
+    edge = np.array([gamma, 1.0, 1.0]) / max(gamma, 1.0)
+    multiple = next((k for k in range(1, 1001) if np.allclose(k * edge, np.rint(k * edge), atol=1e-9, rtol=0)), None)
+    if multiple is None:
+        raise InputError(f"gamma = {gamma!r}: the box (γ, 1, 1) admits no cubic voxels with N ≤ 1000 per edge")
+    return multiple
+
+
+def scaled_resolution(resolution, density: float, reference_density: float, gamma: float = 1.0,
+                      box: str = "equiaxed"):
+    """The grid at ``density`` that keeps the voxels across a wall of the grid ``resolution`` at ``reference_density``.
+
+    The rule of a density sweep at fixed wall resolution: the wall (strut) half width of the foams grows about in
+    proportion to the density (``VoronoiFoam.radius``), so the spacing that resolves it is scaled by
+    ``density / reference_density``, i.e. the grid by ``reference_density / density``:
+
+    - ``N`` (cubic voxels): ``N × reference_density / density`` rounded to the nearest multiple of the step that
+      keeps the voxels cubic in the box at ``gamma`` (the smallest ``k`` with ``γ k`` an integer in the equiaxed
+      box: 10 at γ = 0.1 and 0.3, 5 at 0.2, 2 at 0.5), and at least 8;
+    - ``(N1, N2, N3)`` or ``'N1xN2xN3'`` (non-cubic voxels, for walls nearly normal to x whose width the x spacing
+      alone resolves, ``VoronoiFoam.grid_shape``): ``N1`` scaled and rounded (at least 2), ``N2`` and ``N3`` kept.
+
+    Returns an ``int`` or a tuple, as given. Raises :class:`~foambase.errors.InputError` for a density or reference
+    density outside (0, 1) or a resolution that is neither form.
+    """
+    for label, value in (("density", density), ("reference_density", reference_density)):
+        if not (isinstance(value, (int, float)) and 0 < value < 1):
+            raise InputError(f"{label} must lie in (0, 1), got {value!r}")
+    factor = reference_density / density
+    triple = _parse_grid(resolution) if isinstance(resolution, (tuple, list, str)) else None
+    if triple is not None:
+        return (max(2, int(round(triple[0] * factor))), triple[1], triple[2])
+    if isinstance(resolution, (tuple, list, str)) or int(resolution) != resolution or resolution < 8:
+        raise InputError(f"resolution must be an integer N >= 8 or a grid N1xN2xN3, got {resolution!r}")
+    step = _cubic_multiple(box, gamma)
+    n = step * max(1, round(resolution * factor / step))
+    return int(n if n >= 8 else step * math.ceil(8 / step))
+
+
 def grid(densities: Iterable[float] = DENSITIES, gammas: Iterable[float] = GAMMAS,
          seeds: Iterable[int] = SEEDS) -> list[Sample]:
     """All (density, γ, seed) combinations, each once (a repeated value counts once), in a fixed order."""
@@ -420,7 +463,9 @@ def run_sweep(samples: Sequence[Sample], settings: SweepSettings, cache_dir: str
     samples
         The foams to compute (see :func:`grid`).
     settings
-        Resolution, cells per RVE and tolerance of every sample.
+        Resolution, cells per RVE and tolerance of every sample; or a callable ``settings(sample)`` giving each
+        sample its own (e.g. a grid per (density, γ), :func:`scaled_resolution`). All samples of one call are dealt
+        to the ranks together, whatever their settings.
     cache_dir
         One JSON file per finished sample (:func:`cache_name`); usable entries are read, never recomputed.
     comm
@@ -445,15 +490,17 @@ def run_sweep(samples: Sequence[Sample], settings: SweepSettings, cache_dir: str
     cache = Path(cache_dir)
     cache.mkdir(parents=True, exist_ok=True)
     threads = threads_per_rank(comm) if threads is None else threads
-    entry = {s: cache / cache_name(s, settings) for s in samples}
+    settings_of = settings if callable(settings) else (lambda _sample: settings)
+    entry = {s: cache / cache_name(s, settings_of(s)) for s in samples}
     if distribute not in ("samples", "fft"):
         raise InputError(f"distribute must be 'samples' or 'fft', got {distribute!r}")
     together = distribute == "fft" and comm.size > 1
     if together:  # one list on every rank, in the same order: every rank takes part in every sample
-        mine = comm.bcast([s for s in samples if read_cache_entry(entry[s], s, settings) is None]
+        mine = comm.bcast([s for s in samples if read_cache_entry(entry[s], s, settings_of(s)) is None]
                           if comm.rank == 0 else None, root=0)
     else:
-        mine = [s for s in list(samples)[comm.rank::comm.size] if read_cache_entry(entry[s], s, settings) is None]
+        mine = [s for s in list(samples)[comm.rank::comm.size]
+                if read_cache_entry(entry[s], s, settings_of(s)) is None]
     if stop_after is not None:
         mine = mine[:stop_after]
     failures = []
@@ -462,7 +509,7 @@ def run_sweep(samples: Sequence[Sample], settings: SweepSettings, cache_dir: str
     for sample in bar:
         writer = comm.rank == 0 or not together
         try:
-            row = homogenize_sample(sample, settings, threads, comm=comm if together else None)
+            row = homogenize_sample(sample, settings_of(sample), threads, comm=comm if together else None)
         except Exception as exc:  # recorded and reported below on every rank, never swallowed
             message = f"{sample}: {type(exc).__name__}: {exc}"
             if writer:
@@ -483,7 +530,7 @@ def run_sweep(samples: Sequence[Sample], settings: SweepSettings, cache_dir: str
     comm.barrier()
     if stop_after is not None:
         return None
-    rows = [read_cache_entry(entry[s], s, settings) for s in sorted(samples)]
+    rows = [read_cache_entry(entry[s], s, settings_of(s)) for s in sorted(samples)]
     unusable = [str(entry[s]) for s, row in zip(sorted(samples), rows, strict=True) if row is None]
     if unusable:
         raise ComputationError(f"foam sweep: cache entries changed or vanished while the sweep ran: {unusable}")
@@ -562,3 +609,97 @@ def write_tables(rows: Sequence[dict], out_dir: str | os.PathLike, provenance: d
 def settings_dict(settings: SweepSettings) -> dict:
     """The settings as recorded in the provenance, with the fixed solver choices."""
     return asdict(settings) | {"nu_solid": NU_SOLID, "scheme": SCHEME}
+
+
+def _parse_cell(text: str):
+    """A CSV cell written by :func:`to_csv` back as the value: ``int``, ``float`` (``repr``, exact) or text."""
+    if re.fullmatch(r"-?\d+", text):
+        return int(text)
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
+def read_samples(path: str | os.PathLike) -> list[dict]:
+    """The sample rows of a ``*_samples.csv`` written by :func:`write_tables`, with their values' types restored."""
+    try:
+        with open(path, newline="") as f:
+            rows = [{k: _parse_cell(v) for k, v in row.items()} for row in csv.DictReader(f)]
+    except OSError as exc:
+        raise InputError(f"foam table samples {str(path)!r} cannot be read ({exc.strerror})") from exc
+    missing = [c for c in INPUTS if rows and c not in rows[0]]
+    if not rows or missing:
+        raise InputError(f"{str(path)!r} is not a foam table's samples file (no rows, or no column {missing[:1]})")
+    return rows
+
+
+def _row_settings(row: dict) -> dict:
+    return settings_dict(settings_from_row(row))
+
+
+def merge_samples(sources: Sequence[tuple[str, Sequence[dict]]]) -> list[dict]:
+    """The samples of several tables as one table's samples, refusing any mix of settings at one grid node.
+
+    ``sources`` are ``(label, rows)`` pairs (e.g. per-density tables of one sweep). A (density, γ) node may come
+    from several sources only with the same settings (cells, grid, tolerance, box, foam, discretization) for every
+    seed; a sample (density, γ, seed) given twice must have the same settings and the same stiffness, and is kept
+    once. All rows must belong to one table (:attr:`SweepSettings.name`). Raises
+    :class:`~foambase.errors.InputError` naming the node, the sources and the differing settings, before anything
+    is written.
+    """
+    nodes: dict[tuple[float, float], tuple[str, dict]] = {}
+    samples: dict[tuple[float, float, int], tuple[str, dict]] = {}
+    names: dict[str, str] = {}
+    for label, rows in sources:
+        for row in rows:
+            settings = _row_settings(row)
+            names.setdefault(settings_from_row(row).name, label)
+            node = (float(row["density"]), float(row["gamma"]))
+            first_label, first = nodes.setdefault(node, (label, settings))
+            if first != settings:
+                diff = {k: (first[k], settings[k]) for k in first if first[k] != settings[k]}
+                raise InputError(f"cannot merge: density {node[0]}, gamma {node[1]} has other settings in "
+                                 f"{label!r} than in {first_label!r}: " + ", ".join(
+                                     f"{k} {a!r} vs {b!r}" for k, (a, b) in diff.items()))
+            key = node + (int(row["seed"]),)
+            if key in samples:
+                other_label, other = samples[key]
+                if any(other[c] != row[c] for c in C_ENTRIES):
+                    raise InputError(f"cannot merge: sample density {key[0]}, gamma {key[1]}, seed {key[2]} "
+                                     f"differs between {other_label!r} and {label!r} at the same settings")
+                continue
+            samples[key] = (label, row)
+    if len(names) > 1:
+        raise InputError(f"cannot merge rows of different tables: {sorted(names)} (from {sorted(names.values())})")
+    if not samples:
+        raise InputError("cannot merge: no samples")
+    return [row for _, (_, row) in sorted(samples.items())]
+
+
+def merge_tables(sources: Sequence[str | os.PathLike], out_dir: str | os.PathLike) -> dict[str, Path]:
+    """Merge the tables written by :func:`write_tables` in the directories ``sources`` into one in ``out_dir``.
+
+    Each source holds one table (one ``foam_table*_samples.csv``); the merged samples (:func:`merge_samples`),
+    their aggregate over seeds and a provenance listing every source's provenance are written under that table's
+    name. Raises :class:`~foambase.errors.InputError` before writing anything for a source without exactly one
+    table or with conflicting settings.
+    """
+    loaded, provenance = [], []
+    for source in sources:
+        found = sorted(Path(source).glob("foam_table*_samples.csv"))
+        if len(found) != 1:
+            raise InputError(f"merge source {str(source)!r} must hold exactly one foam_table*_samples.csv, found "
+                             f"{[p.name for p in found]}")
+        loaded.append((str(source), read_samples(found[0])))
+        prov_path = found[0].with_name(found[0].name.replace("_samples.csv", "_provenance.json"))
+        try:
+            prov = json.loads(prov_path.read_text())
+        except (OSError, ValueError) as exc:
+            raise InputError(f"merge source {str(source)!r}: provenance {prov_path.name} unreadable ({exc})") from exc
+        provenance.append({"source": str(source), "provenance": prov})
+    rows = merge_samples(loaded)
+    name = settings_from_row(rows[0]).name
+    merged = {"merged_from": provenance, "date": datetime.now(UTC).isoformat(timespec="seconds"),
+              "n_samples": len(rows), "sample_wall_s_total": float(sum(float(r["wall_s"]) for r in rows))}
+    return write_tables(rows, out_dir, merged, name)

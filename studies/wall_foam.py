@@ -18,9 +18,16 @@ choice, checked by ``resolution``.
     three members a Richardson estimate (``q = q0 + c h^p`` through the three finest,
     :func:`homogenization.convergence.richardson`, in the x spacing) with the remaining bias of each level.
 ``table``
-    One grid per γ (``--grid``, the last given for a γ wins), seeds ``--seeds`` (default 0 1 2): writes the table
-    ``equiaxed_polyhedral`` (:attr:`SweepSettings.name`) with its samples and provenance under ``--out``, and with
-    ``--ship`` into ``homogenization/data``. Exits 1 if a sample misses its density by more than 0.002.
+    Every ``--density`` × one grid per γ (``--grid``, the last given for a γ wins), seeds ``--seeds`` (default
+    0 1 2), in one resumable run: with ``--reference-density REF`` each ``--grid`` is the grid at ``REF``, scaled
+    at the other densities by :func:`homogenization.tables.scaled_resolution` (constant voxels across a wall).
+    Writes one table ``equiaxed_polyhedral`` (``_hex8`` with ``--discretization hex8``,
+    :attr:`SweepSettings.name`) over the whole grid with its samples and provenance (every node's settings)
+    under ``--out``, and with ``--ship`` into ``homogenization/data``. Exits 1 if a sample misses its density by
+    more than 0.002.
+``merge``
+    ``--from DIR [DIR ...]``: the tables of earlier ``table`` runs merged into one under ``--out``
+    (:func:`homogenization.tables.merge_tables`; refuses a (density, γ) node at different settings in two runs).
 
 Run: ``OMP_NUM_THREADS=1 python studies/wall_foam.py table --grid 0.1=60x300x300 --grid 1=96 --cache
 out/wall-cache --out out/wall-table`` (``mpirun -n 2`` deals the samples to two ranks; with ``--distribute fft``
@@ -42,7 +49,6 @@ from mpi4py import MPI
 
 from homogenization import tables
 from homogenization.convergence import richardson
-from meshes.foam import VoronoiFoam
 
 MODULI = ("E1", "E2", "E3", "G23", "G13", "G12", "ti_E_t", "ti_E_l", "ti_G_l", "iso_E")
 
@@ -73,7 +79,7 @@ def parse_seeds(text: str) -> tuple[float, list[int]]:
 def settings_for(grid, a) -> tables.SweepSettings:
     cubic = not isinstance(grid, tuple)
     return tables.SweepSettings(n_cells=a.cells, resolution=grid, tol=a.tol, box="equiaxed", distance="polyhedral",
-                                maxiter=a.maxiter, cubic=cubic)
+                                maxiter=a.maxiter, cubic=cubic, discretization=a.discretization)
 
 
 def spacing(gamma: float, grid) -> np.ndarray:
@@ -86,7 +92,7 @@ def spacing(gamma: float, grid) -> np.ndarray:
 def resolution_study(a, comm) -> int:
     rows = []
     for gamma, grid in a.grid:
-        rows += tables.run_sweep(tables.grid((a.density,), (gamma,), a.seeds), settings_for(grid, a), a.cache, comm,
+        rows += tables.run_sweep(tables.grid(a.density, (gamma,), a.seeds), settings_for(grid, a), a.cache, comm,
                                  threads=1, progress=False, distribute=a.distribute)
     if comm.rank != 0:
         return 0
@@ -135,34 +141,55 @@ def resolution_study(a, comm) -> int:
     return density_check(rows)
 
 
+def node_grid(a, density: float, gamma: float, grid):
+    """The grid of one (density, γ) node: ``grid`` itself, or scaled by ``--reference-density`` (the wall rule)."""
+    if a.reference_density is None:
+        return grid
+    return tables.scaled_resolution(grid, density, a.reference_density, gamma, box="equiaxed")
+
+
 def table(a, comm) -> int:
     start = time.perf_counter()
     grids = dict(a.grid)
-    rows, settings = [], {}
     seeds = dict(a.gamma_seeds or [])
-    for gamma, grid in sorted(grids.items()):
-        s = settings_for(grid, a)
-        settings[str(gamma)] = tables.settings_dict(s) | {"seeds": seeds.get(gamma, a.seeds)}
-        rows += tables.run_sweep(tables.grid((a.density,), (gamma,), seeds.get(gamma, a.seeds)), s, a.cache, comm,
-                                 threads=1, progress=False, distribute=a.distribute)
+    node = {(d, g): settings_for(node_grid(a, d, g, grids[g]), a) for d in a.density for g in grids}
+    samples = sorted(tables.Sample(float(d), float(g), int(s)) for d in a.density for g in grids
+                     for s in seeds.get(g, a.seeds))
+    rows = tables.run_sweep(samples, lambda s: node[(s.density, s.gamma)], a.cache, comm, threads=1,
+                            progress=False, distribute=a.distribute)
     if comm.rank != 0:
         return 0
-    name = settings_for(next(iter(grids.values())), a).name
+    name = next(iter(node.values())).name
     launcher = f"mpirun -n {comm.size} " if comm.size > 1 else ""
-    half = {str(g): VoronoiFoam(a.cells, a.density, g, seed=0, box="equiaxed", distance="polyhedral").radius
-            for g in grids}
+    settings, across = {}, {}
+    for (d, g), s in sorted(node.items()):
+        key = f"density={d:g},gamma={g:g}"
+        settings[key] = tables.settings_dict(s) | {"seeds": seeds.get(g, a.seeds)}
+        half = np.mean([r["radius"] for r in rows if (r["density"], r["gamma"]) == (d, g)])  # over the seeds
+        across[key] = float(2 * half / spacing(g, s.resolution)[0])
     provenance = {"command": launcher + " ".join(["python", "studies/wall_foam.py", *sys.argv[1:]]),
                   "date": datetime.now(UTC).isoformat(timespec="seconds"), "ranks": comm.size,
                   "wall_s_this_run": time.perf_counter() - start,
                   "sample_wall_s_total": float(sum(r["wall_s"] for r in rows)), "n_samples": len(rows),
-                  "voxels_across_a_wall_along_x": {g: 2 * half[str(g)] / spacing(g, grids[g])[0] for g in grids},
-                  "settings_per_gamma": settings}
+                  "grid_rule": ({"reference_density": a.reference_density,
+                                 "grids_at_reference_density": {str(g): grids[g] for g in grids},
+                                 "rule": "homogenization.tables.scaled_resolution"}
+                                if a.reference_density is not None else "the --grid of each gamma at every density"),
+                  "voxels_across_a_wall_along_x": across,
+                  "settings_per_node": settings}
     paths = tables.write_tables(rows, a.out, provenance, name)
     if a.ship:
         tables.write_tables(rows, tables.DATA_DIR, provenance, name)
     print(tables.format_table(tables.aggregate(rows)))
     print("written: " + ", ".join(str(v) for v in paths.values()))
     return density_check(rows)
+
+
+def merge(a, comm) -> int:
+    if comm.rank == 0:
+        paths = tables.merge_tables(a.sources, a.out)
+        print("written: " + ", ".join(str(v) for v in paths.values()))
+    return 0
 
 
 def density_check(rows: list[dict]) -> int:
@@ -174,12 +201,20 @@ def density_check(rows: list[dict]) -> int:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("study", choices=("resolution", "table"), nargs="?", default="table")
+    p.add_argument("study", choices=("resolution", "table", "merge"), nargs="?", default="table")
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--cache", type=Path, default=None, help="sample cache (default OUT/cache)")
     p.add_argument("--grid", type=parse_grid, action="append", default=None,
                    help="GAMMA=N (cubic voxels) or GAMMA=N1xN2xN3 (the grid, non-cubic voxels allowed)")
-    p.add_argument("--density", type=float, default=0.18)
+    p.add_argument("--density", type=float, nargs="+", default=[0.18],
+                   help="relative densities (table: every one × every --grid γ; resolution: one)")
+    p.add_argument("--reference-density", type=float, default=None,
+                   help="table: each --grid is the grid at this density, scaled by REF/density at the others "
+                        "(tables.scaled_resolution: constant voxels across a wall)")
+    p.add_argument("--discretization", choices=tables.SWEEP_DISCRETIZATIONS, default="rotated",
+                   help="voxels: rotated (one-point, from below) or hex8 (fully integrated, from above)")
+    p.add_argument("--from", dest="sources", type=Path, nargs="+", default=None,
+                   help="merge: the table directories (--out of earlier table runs) to merge into --out")
     p.add_argument("--seeds", type=int, nargs="+", default=None, help="default 0 (resolution), 0 1 2 (table)")
     p.add_argument("--gamma-seeds", type=parse_seeds, action="append", default=None,
                    help="GAMMA=S1,S2,...: the seeds of one γ (table; default --seeds)")
@@ -194,14 +229,20 @@ def main(argv=None) -> int:
     a = p.parse_args(argv)
     a.cache = a.cache or a.out / "cache"
     comm = MPI.COMM_WORLD
+    if a.study == "merge":
+        if not a.sources:
+            p.error("merge needs --from DIR [DIR ...]")
+        return merge(a, comm)
     if a.ci:
-        a.cells, a.density, a.seeds, a.ship = 4, 0.45, [0], False
+        a.cells, a.density, a.seeds, a.ship = 4, [0.45], [0], False
         a.grid = [(1.0, (16, 12, 12)), (1.0, (20, 15, 15)), (1.0, (24, 18, 18))]
         status = resolution_study(a, comm)
         a.grid = [(1.0, (24, 18, 18)), (0.5, (16, 24, 24))]  # the first from the cache
         return max(status, table(a, comm))
     if not a.grid:
         p.error("give at least one --grid GAMMA=N or GAMMA=N1xN2xN3")
+    if a.study == "resolution" and len(a.density) != 1:
+        p.error(f"resolution takes one --density, got {a.density}")
     a.seeds = a.seeds or ([0] if a.study == "resolution" else [0, 1, 2])
     return resolution_study(a, comm) if a.study == "resolution" else table(a, comm)
 
