@@ -5,12 +5,17 @@ For uniaxial stretches λ along l and across l and simple shears γ (l ⊗ t), p
 tangent), ``corotational_sofa`` (frozen-R tangent) and ``bonet_burton``, for the paper's foam
 (``tripod_models.PAPER_FOAM``) or the shipped case B plate (``--foam table``). Negative: strong ellipticity lost.
 
-Run: `python studies/ellipticity_models.py [--foam paper|table]` (≈ 1 min, serial).
+Check (exit status 1 if it fails): ``corotational_sofa``'s margin, the linear law's turned by a frozen rotation,
+stays positive at every deformation.
+
+Run: `python studies/ellipticity_models.py [--foam paper|table] [--out DIR] [--ci]` (≈ 1 min, serial; ``--ci``: a
+few stretches and one shear; ``--out``: the table as ``DIR/ellipticity_models.csv``).
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import sys
 from pathlib import Path
 
@@ -36,7 +41,11 @@ SHEARS = (0.02, 0.05, 0.1, 0.2)
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--foam", choices=["paper", "table"], default="paper")
+    parser.add_argument("--out", type=Path, help="folder for ellipticity_models.csv")
+    parser.add_argument("--ci", action="store_true", help="stretches 0.8, 1.1 and one shear only")
     args = parser.parse_args()
+    stretches = (0.8, 1.1) if args.ci else STRETCHES
+    shears = (0.1,) if args.ci else SHEARS
     foam = TransverseIsotropic(**PAPER_FOAM) if args.foam == "paper" else scene_materials()["plate"]
     cube = mesh.create_unit_cube(MPI.COMM_SELF, 1, 1, 1)
     V = fem.VectorFunctionSpace(cube, ("CG", 1))
@@ -44,15 +53,27 @@ def main() -> int:
     field = MaterialField.uniform(cube, foam)
     a = orientation.uniform(cube, (1.0, 0.0, 0.0))  # l = x, t = y
     l, t = np.eye(3)[0], np.eye(3)[1]
-    rows = [(f"stretch {s:g} along l", np.eye(3) + (s - 1) * np.outer(l, l)) for s in STRETCHES]
-    rows += [(f"stretch {s:g} across l", np.eye(3) + (s - 1) * np.outer(t, t)) for s in STRETCHES]
-    rows += [(f"shear {g:g} (l ⊗ t)", np.eye(3) + g * np.outer(l, t)) for g in SHEARS]
+    rows = [(f"stretch {s:g} along l", np.eye(3) + (s - 1) * np.outer(l, l)) for s in stretches]
+    rows += [(f"stretch {s:g} across l", np.eye(3) + (s - 1) * np.outer(t, t)) for s in stretches]
+    rows += [(f"shear {g:g} (l ⊗ t)", np.eye(3) + g * np.outer(l, t)) for g in shears]
     print(f"{foam}\nmargin (kPa)" + "".join(f"{m:>20s}" for m in MODELS))
+    table = []
     for label, F in rows:
         H = F - np.eye(3)
         u.interpolate(lambda x, H=H: H @ x)
         margins = [ellipticity_margin(u, m, field, a).min_margin / 1e3 for m in MODELS]
         print(f"{label:24s}" + "".join(f"{v:20.2f}" for v in margins), flush=True)
+        table.append({"deformation": label, **{f"{m}_kPa": v for m, v in zip(MODELS, margins)}})
+    if args.out is not None:
+        args.out.mkdir(parents=True, exist_ok=True)
+        with (args.out / "ellipticity_models.csv").open("w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=list(table[0]))
+            writer.writeheader()
+            writer.writerows(table)
+    lost = [r["deformation"] for r in table if not r["corotational_sofa_kPa"] > 0.0]
+    if lost:
+        print(f"CHECK FAILED: corotational_sofa lost ellipticity under {', '.join(lost)}", file=sys.stderr)
+        return 1
     return 0
 
 
