@@ -555,7 +555,8 @@ def _check_materials(materials, ids) -> tuple[dict[int, np.ndarray], int]:
         try:
             C = np.asarray(available[p], dtype=float)
         except (TypeError, ValueError) as exc:
-            raise InputError(f"materials[{p}] must be a 6×6 Voigt stiffness of numbers, got {available[p]!r:.80}") from exc
+            raise InputError(f"materials[{p}] must be a 6×6 Voigt stiffness of numbers, "
+                             f"got {available[p]!r:.80}") from exc
         if C.shape != (6, 6):
             raise InputError(f"materials[{p}] must be a 6×6 Voigt stiffness, got shape {C.shape}")
         if not np.all(np.isfinite(C)):
