@@ -2,7 +2,7 @@
 # # Inverse control: the Tripod's centre follows a trajectory of poses (case B)
 #
 # This demo shows:
-# - `fenicsfoam.control.InverseController` on `demos/scenes/tripod_case_b.toml`: for each pose of a short
+# - `fenicsfoam.control.InverseController` on `demos/scenes/tripod_case_b_flat.toml`: for each pose of a short
 #   trajectory of the centre (its height and its tilts about x and y), the three servo angles that reach it;
 # - warm starts: each pose starts from the previous pose's angles and equilibrium, so that a small move costs a
 #   few forward solves;
@@ -66,7 +66,7 @@ def poses(ci: bool) -> list[dict[str, float]]:
 
 # %%
 def follow(ci: bool, comm: MPI.Comm) -> tuple[dict, list]:
-    scene = load_scene_dict("tripod_case_b", ci_h=CI_H if ci else None, png=False)
+    scene = load_scene_dict("tripod_case_b_flat", ci_h=CI_H if ci else None, png=False)
     scene["outputs"]["xdmf"] = False
     controller = InverseController(parse_scene(scene), comm)
     rows = []

@@ -60,7 +60,7 @@ SIZES = {False: (None, 20, 150, 15), True: (0.01, 6, 15, 3)}
 
 def build(ci: bool, comm) -> SceneDesign:
     h = SIZES[ci][0]
-    scene = load_scene_dict("tripod_case_a", ci_h=h, png=False)
+    scene = load_scene_dict("tripod_case_a_flat", ci_h=h, png=False)
     scene["outputs"]["xdmf"] = False
     # case A's l axes as the arms' directions turned by offset_deg: the design parameter is the angle from the arms
     scene["orientation"]["directions"] = {"arm0": [1.0, 0.0, 0.0], "arm1": [-0.5, 0.75 ** 0.5, 0.0],
@@ -153,7 +153,7 @@ def design_c(ci: bool, comm) -> dict:
     wall = comm.allreduce(time.perf_counter() - t0, op=MPI.MAX)
     offset = result.parameters["orientation.offset_deg"]
     # an independent check: the scene file's case A turned by the offset found, run as `fenicsfoam run` would
-    scene = load_scene_dict("tripod_case_a", ci_h=SIZES[ci][0], png=False)
+    scene = load_scene_dict("tripod_case_a_flat", ci_h=SIZES[ci][0], png=False)
     scene["outputs"]["xdmf"] = False
     scene["orientation"]["offset_deg"] = offset - INITIAL_OFFSET  # the file's l axes are 30° off the arms
     plain = -run_scene(parse_scene(scene), comm=comm).steps[-1].probes["center_rotation"]

@@ -6,7 +6,7 @@
 #   FFT solver exactly as each sample of the shipped table is (`homogenization.tables.homogenize_sample`);
 # - the plate's transversely isotropic constants interpolated from the shipped, seed-averaged table
 #   (`fenicsfoam.materials.foam_material`, TPU: E_s = 12 MPa, ν_s = 0.3, 1190 kg/m³);
-# - `demos/scenes/tripod_case_b.toml` run through `fenicsfoam.scene.run_scene`: rest, middle (+19°) and top
+# - `demos/scenes/tripod_case_b_flat.toml` run through `fenicsfoam.scene.run_scene`: rest, middle (+19°) and top
 #   (+38°) servo positions; the centre's height and rotation as changes from rest beside the paper's Table I.
 #
 # ## Stage 1: the cell problem
@@ -40,7 +40,7 @@
 # - the centre rises from rest to middle to top, and its rise and twist are within `TABLE_I_RATIO_BAND`
 #   = [0.7, 1.3] of the real robot's (measured 0.87–1.22; see `demos/tripod.py`).
 #
-# Outputs under `--out`: `tripod_case_b/` (summary.json, probes.csv, solution.xdmf, pictures) and
+# Outputs under `--out`: `tripod_case_b_flat/` (summary.json, probes.csv, solution.xdmf, pictures) and
 # `pipeline.json`. `--ci` runs a smaller foam (6 cells, N = 24) and a coarser plate (h = 6 mm).
 #
 # Run: `python demos/pipeline.py --out out [--ci]` (`make demo`), also under `mpirun -n 2`.
@@ -59,13 +59,17 @@ from fenicsfoam.materials import TransverseIsotropic, foam_material
 from fenicsfoam.scene import run_scene
 from homogenization import tables
 
-SCENE = "tripod_case_b"
+SCENE = "tripod_case_b_flat"
 #: The recomputed sample against the shipped one (same foam, same settings): a round-off bound.
 REPRODUCE_RTOL = 1e-6
 CONSTANTS = ("E1", "E2", "E3", "G23", "G12")
 #: --ci: foam settings and the plate's mesh size (m).
 CI_SETTINGS = tables.SweepSettings(n_cells=6, resolution=24, tol=1e-3)
 CI_H = 0.006
+#: Why the Tripod runs at degree 1 although the mesh check warns against it (one line, printed before the run).
+DEGREE_NOTE = ("Tripod at degree 1 as the paper's Table I model (2.7k linear tets, about one through the 5 mm plate), "
+               "so the P1 warning below is expected; on the shipped mesh degree 2 gives a rise and twist at top of 19.2 mm, -15.9 deg "
+               "(P1: 25.1 mm, -19.2 deg; real robot 20.5 mm, 22.1 deg)")
 
 
 # %% [markdown]
@@ -136,6 +140,7 @@ def robot_stage(scene: dict, out: Path, ci: bool, comm: MPI.Comm) -> tuple[objec
     if ci:
         scene["geometry"]["h"] = CI_H
         scene["outputs"] = {"png": [scene["steps"][-1]["label"]]}
+    print0(DEGREE_NOTE, comm=comm)
     result = run_scene(scene, out / SCENE, comm=comm)
     height = deltas(1e3 * v for v in result.probe("center_height").values())
     angle = deltas(result.probe("center_rotation").values())
@@ -170,7 +175,7 @@ def main(out: Path, ci: bool, comm: MPI.Comm = MPI.COMM_WORLD) -> int:
     failures += robot_failures
     if comm.rank == 0:
         record = {"foam_sample": sample, "plate_material": material.constants | {"rho": material.rho},
-                  "tripod_case_b": result.summary()["steps"], "failures": failures}
+                  "tripod_case_b_flat": result.summary()["steps"], "failures": failures}
         tmp = out / ".pipeline.json.tmp"
         tmp.write_text(json.dumps(record, indent=2, default=float))
         tmp.replace(out / "pipeline.json")

@@ -2,7 +2,7 @@
 # # Table I: the Tripod's centre height and torsion, silicone vs foam plates, against the paper
 #
 # This demo shows:
-# - running `demos/scenes/tripod_silicone.toml`, `tripod_case_a.toml` and `tripod_case_b.toml` with
+# - running `demos/scenes/tripod_silicone_flat.toml`, `tripod_case_a_flat.toml` and `tripod_case_b_flat.toml` with
 #   `fenicsfoam.scene.run_scene`: the plate's weight at rest (horns at 0°), then all three horns at 19° (middle)
 #   and 38° (top);
 # - the changes from rest of the centre's height and of its rotation about the vertical axis, side by side with
@@ -57,7 +57,7 @@ from mpi4py import MPI
 
 from fenicsfoam.scene import run_scene
 
-CASES = ("tripod_silicone", "tripod_case_a", "tripod_case_b")
+CASES = ("tripod_silicone_flat", "tripod_case_a_flat", "tripod_case_b_flat")
 #: Twist bound of the mirror-symmetric silicone plate, relative to case B's torsion at the top: zero
 #: by symmetry, and the mesh is D3-invariant (``meshes.tripod``), so only round-off and the solver tolerance
 #: remain (measured ≈ 1e-15 relative).
@@ -76,7 +76,7 @@ def run_tripods(out: Path, ci: bool, comm: MPI.Comm = MPI.COMM_WORLD) -> dict:
     results = {}
     for name in CASES:
         # --ci: pictures (≈1 s each) only of case B's last step
-        png = (True if name == "tripod_case_b" else False) if ci else None
+        png = (True if name == "tripod_case_b_flat" else False) if ci else None
         scene = load_scene_dict(name, ci_h=CI_H if ci else None, png=png)
         results[name] = run_scene(scene, out / name, comm=comm)
     return results
@@ -126,23 +126,23 @@ def check(results: dict) -> list[str]:
         heights = list(r.probe("center_height").values())
         if not heights[0] < heights[1] < heights[2]:
             failures.append(f"{name}: centre heights {heights} m do not rise from rest to middle to top")
-    twist = abs(changes(results["tripod_case_b"])["angle"][1])
+    twist = abs(changes(results["tripod_case_b_flat"])["angle"][1])
     bound = SYMMETRY_RTOL * twist
-    angles = results["tripod_silicone"].probe("center_rotation")
+    angles = results["tripod_silicone_flat"].probe("center_rotation")
     if not max(abs(v) for v in angles.values()) < bound:
-        failures.append(f"tripod_silicone twists: {angles} deg (symmetry bound {bound:.3g} deg = "
+        failures.append(f"tripod_silicone_flat twists: {angles} deg (symmetry bound {bound:.3g} deg = "
                         f"{SYMMETRY_RTOL:g} × case B's torsion at top)")
-    for name in ("tripod_case_a", "tripod_case_b"):
+    for name in ("tripod_case_a_flat", "tripod_case_b_flat"):
         torsion = changes(results[name])["angle"][1]
         if not abs(torsion) > 1.0:
             failures.append(f"{name}: torsion at top {torsion:.3g} deg, expected more than 1 deg")
-    for name in ("tripod_case_a", "tripod_case_b"):
+    for name in ("tripod_case_a_flat", "tripod_case_b_flat"):
         ours = changes(results[name])
         real = {q: deltas(TABLE_I[name][q][1]) for q in ("height", "angle")}
         for k, label in enumerate(("middle", "top")):
             failures += ratio_check(name, ours["height"][k], real["height"][k], RATIO_BAND,
                                     f"rise of the centre at {label} (mm) vs the real robot")
-            if name == "tripod_case_b":
+            if name == "tripod_case_b_flat":
                 failures += ratio_check(name, abs(ours["angle"][k]), abs(real["angle"][k]), RATIO_BAND,
                                         f"|twist| at {label} (deg) vs the real robot")
     return failures

@@ -13,7 +13,7 @@ the vertical motion and lets the region slide and turn otherwise, like a load ce
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -52,6 +52,9 @@ class RigidMotion:
         The rotation axis (any non-zero 3-vector) and a point on it (m).
     components
         The components of ``u`` prescribed (0: x, 1: y, 2: z); the others are free.
+    where
+        Instead of ``entities``: a marker of points (3, n) → bools; every node of the space at a marked point
+        is prescribed (e.g. a box, as a servo's clamp box selects the nodes inside it). All components.
 
     """
 
@@ -61,6 +64,7 @@ class RigidMotion:
     axis: tuple[float, float, float] = (0.0, 0.0, 1.0)
     point: tuple[float, float, float] = (0.0, 0.0, 0.0)
     components: tuple[int, ...] = (0, 1, 2)
+    where: Callable[[np.ndarray], np.ndarray] | None = None
 
     def __post_init__(self):
         rotation_matrix(self.axis, 0.0)  # validates the axis
@@ -70,6 +74,9 @@ class RigidMotion:
         if not components or len(set(components)) != len(components) or not set(components) <= {0, 1, 2}:
             raise InputError(f"motion {self.name!r}: components must be distinct values among 0, 1, 2, got "
                              f"{self.components!r}")
+        if self.where is not None and components != (0, 1, 2):
+            raise InputError(f"motion {self.name!r}: a motion selected by a marker (where) prescribes every "
+                             f"component, got components {self.components!r}")
 
     def displacement(self, X: np.ndarray, angle: float, translation: Sequence[float]) -> np.ndarray:
         """``u(X) = R(θ)(X - p) + p + t - X`` for reference points ``X`` of shape (n, 3)."""
@@ -101,7 +108,10 @@ class MotionBC:
         self.motion = motion
         self.components = tuple(sorted(motion.components))
         entities = np.asarray(motion.entities, dtype=np.int32)
-        self.dofs = fem.locate_dofs_topological(V, dim, entities)
+        if motion.where is not None:
+            self.dofs = fem.locate_dofs_geometrical(V, motion.where)
+        else:
+            self.dofs = fem.locate_dofs_topological(V, dim, entities)
         n_owned = V.dofmap.index_map.size_local
         if mesh.comm.allreduce(int(np.sum(self.dofs < n_owned))) == 0:
             raise InputError(f"motion {motion.name!r} selects no degree of freedom (empty region?)")

@@ -66,6 +66,13 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--uncertainty", action="store_true",
                         help="also run once per seed of the foam table: every probe as value ± standard deviation "
                              "(summary.json: probes_std per step)")
+    parser.add_argument("--solver", choices=("auto", "direct", "iterative"), default="auto",
+                        help="linear solver of the Newton iterations: direct (MUMPS LU), iterative (Krylov + GAMG "
+                             "with the rigid-body near-null space), or auto: direct up to 1000000 dofs while its "
+                             "estimated memory fits, iterative otherwise")
+    parser.add_argument("--force", action="store_true",
+                        help="run even when the estimated memory (printed before assembly) exceeds the memory "
+                             "available (otherwise refused, exit status 2)")
     parser.add_argument("--samples", type=cli.nonempty_path, default=None, metavar="CSV",
                         help="per-seed samples for --uncertainty (default: the shipped foam_table_samples.csv)")
 
@@ -82,6 +89,8 @@ def _run(args: argparse.Namespace) -> int:
 
     The output directory is checked before the scene is read (``--out`` named in the error); command-line PETSc
     options that nothing has read by the end of the run are reported in a warning (as PETSc's ``-options_left``).
+    The size estimate is printed before assembly, and the table of the steps done after a failure or an
+    interruption too.
     """
     from mpi4py import MPI
 
@@ -95,9 +104,12 @@ def _run(args: argparse.Namespace) -> int:
         if args.uncertainty:
             from fenicsfoam.uncertainty import run_with_uncertainty
 
-            result = run_with_uncertainty(args.scene, args.out, samples_csv=args.samples, comm=comm)
+            result = run_with_uncertainty(args.scene, args.out, samples_csv=args.samples, comm=comm,
+                                          solver=args.solver, force=args.force,
+                                          echo=lambda text: print(text, flush=True))
         else:
-            result = run_scene(args.scene, args.out, comm=comm)
+            result = run_scene(args.scene, args.out, comm=comm, solver=args.solver, force=args.force,
+                               echo=lambda text: print(text, flush=True))
     if comm.rank == 0:
         print(result.table())
         print(f"outputs in {args.out}")

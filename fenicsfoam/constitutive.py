@@ -21,6 +21,40 @@ Stresses are ``ufl.diff`` of ψ with respect to the strain made a ``ufl.variable
   it by terms of order ``|ε_c| |σ|`` (σ and U do not commute), the corotational model of the paper.
   Writing R in UFL by polar iterations so that the tangent is exact was measured and rejected
   (README, "Macro FEM": 13 min of FFCx/gcc compilation and 8× the assembly time for 3 iterations).
+  Its exact tangent contains ``R Ω σ``, a geometric stiffness of order ``|σ|``: with a TI foam whose ``G_l`` is
+  small against its other moduli it loses strong ellipticity once ``|σ| ≈ G_l`` (:mod:`fenicsfoam.stability`).
+* ``corotational_sofa``: SOFA's corotational tetrahedron (the paper's TetrahedronAnisotropicForceField),
+  ``P = R σ(sym(RᵀF) - I)`` with ``R`` the frame of the element's current edges relative to its rest frame
+  (:class:`EdgeRotation`, SOFA's "large" method: Gram–Schmidt of the edges 0→1 and 0→2, not the polar
+  decomposition) and the tangent taken at frozen ``R`` (``R C Rᵀ``, as SOFA assembles it). The nodal forces are
+  SOFA's ``R K (Rᵀx - x₀)`` for P1. Unlike ``corotational``: ``R`` differs from the polar rotation by a rotation
+  of the order of the element's shear strain and depends on which edges the element numbers first (dolfinx's
+  vertex order here, the mesh file's in SOFA), and the tangent has no rotation terms, so it never loses
+  ellipticity (margin ``min(G_l, …)`` of the linear law at every deformation) but is not the derivative of the
+  residual: Newton converges linearly (default ``snes_max_it`` raised, :class:`fenicsfoam.solver.ElasticityProblem`)
+  and adjoint sensitivities refuse it. The residual is not the gradient of an energy; ``energy`` reports
+  ``½ ε_c:C:ε_c``.
+* ``bonet_burton``: hyperelastic, the transversely isotropic extension of a compressible neo-Hookean energy of
+  Bonet and Burton (Comput. Methods Appl. Mech. Engrg. 162, 1998), ``P = ∂ψ/∂F`` with the exact tangent,
+
+      ψ = μ_T/2 (I₁ - 3) - μ_T ln J + λ/2 (J - 1)² + [a + b ln J + c (I₄ - 1)](I₄ - 1) - a/2 (I₅ - 1),
+
+  ``I₁ = tr C``, ``I₄ = a·C a``, ``I₅ = a·C² a``, ``C = FᵀF``, ``J = det F``, and ``a = μ_T - μ_L``, ``b = α/2``,
+  ``c = β/8`` from the Spencer moduli: its second-order expansion in ``E`` is exactly the quadratic energy
+  above, so the tangent at ``F = I`` is the linear TI stiffness with all five constants. (Bonet and Burton's
+  volumetric term is ``λ/2 (ln J)²``; ``(J - 1)²`` has the same small-strain limit and is convex in ``J``.) It is
+  not polyconvex: the term ``-a/2 I₅`` with ``a = μ_T - μ_L > 0`` softens the material under stretch along and
+  across ``l`` and under shear, and for the project's foams (``μ_L`` a few per cent of ``μ_T``) strong
+  ellipticity is lost at a 2 % stretch or a 5 % shear (``tests/test_models.py``), earlier than ``corotational``
+  in tension and later in transverse compression.
+
+No polyconvex energy built from the usual TI invariants (``I₁``, ``I₂ = tr cof C``, ``J``, ``I₄``,
+``K₃ = a·cof C a``, ``|F(I - A)|²``, ``|cof F (I - A)|²`` through convex non-decreasing functions, and convex
+functions of ``J``) reproduces such a foam: a stress-free reference needs the positive first-order terms of
+these invariants cancelled by ``h(J)`` with ``h'(1) < 0``, which adds ``|h'(1)| E:E`` to every shear, and matching
+the second-order terms then requires ``μ_T <= 2 μ_L`` (the paper's foam has ``μ_T = 34 μ_L``). A polyconvex law
+would have to raise ``G_l`` (or lower the in-plane shear modulus ``E_t / (2(1 + ν_t))``) by an order of magnitude,
+which changes the twist it is meant to predict; none is offered.
 """
 
 from __future__ import annotations
@@ -42,12 +76,17 @@ from foambase.errors import InputError
 
 __all__ = [
     "MODELS",
+    "BonetBurton",
     "Corotational",
+    "CorotationalSOFA",
+    "EdgeRotation",
     "Linear",
     "Model",
     "SaintVenantKirchhoff",
     "as_model",
+    "bonet_burton_energy",
     "corotational_rotation_tangent",
+    "edge_frame",
     "MaterialField",
     "PolarRotation",
     "deformation_gradient",
@@ -209,6 +248,7 @@ class PolarRotation:
         Q = fem.FunctionSpace(mesh, element)
         points, _ = basix.make_quadrature(basix.cell.string_to_type(mesh.topology.cell_name()), quadrature_degree)
         self.R = fem.Function(Q, name="rotation")
+        self._points = points
         self._F = fem.Expression(deformation_gradient(u), points)
         imap = mesh.topology.index_map(mesh.topology.dim)
         self._cells = np.arange(imap.size_local + imap.num_ghosts, dtype=np.int32)
@@ -218,7 +258,45 @@ class PolarRotation:
     def update(self) -> None:
         """Recompute ``R`` from the current displacement (its ghost values must be up to date)."""
         F = self._F.eval(self._cells).reshape(-1, 3, 3)
-        self.R.x.array.reshape(-1, 9)[self._dofs] = polar_rotation(F).reshape(-1, 9)
+        self.R.x.array.reshape(-1, 9)[self._dofs] = self.rotation_of(F).reshape(-1, 9)
+
+    def rotation_of(self, F: np.ndarray) -> np.ndarray:
+        """The rotations (n, 3, 3) of the deformation gradients ``F`` (n, 3, 3) at the points, in ``update``'s order."""
+        return polar_rotation(F)
+
+
+def edge_frame(e0: np.ndarray, e1: np.ndarray) -> np.ndarray:
+    """Orthonormal frames (n, 3, 3) of pairs of edges (n, 3), the Gram–Schmidt frame of SOFA's tetrahedra.
+
+    Columns ``x = e0/|e0|``, ``z = x × e1 / |x × e1|``, ``y = z × x``: the first edge and the plane of the first two.
+    """
+    x = e0 / np.linalg.norm(e0, axis=1, keepdims=True)
+    z = np.cross(x, e1)
+    z /= np.linalg.norm(z, axis=1, keepdims=True)
+    return np.stack([x, np.cross(z, x), z], axis=2)
+
+
+class EdgeRotation(PolarRotation):
+    """The element rotation of SOFA's corotational tetrahedra ("large" method), at the stress quadrature points.
+
+    ``R = G(F E₀, F E₁) G(E₀, E₁)ᵀ`` with :func:`edge_frame` ``G``, ``E₀ = x₁ − x₀`` and ``E₁ = x₂ − x₀`` the
+    reference cell's first two edges (the columns of the geometry Jacobian ``∂x/∂ξ``, in dolfinx's vertex order)
+    and ``F`` the deformation gradient at the point: for P1 exactly the frame of the current edges
+    ``x₁ − x₀``, ``x₂ − x₀`` relative to the rest frame. ``R(QF) = Q R(F)`` for every rotation ``Q``, ``R(I) = I``;
+    unlike the polar rotation it depends on which edges the element numbers first, and ``RᵀF`` is not symmetric.
+    """
+
+    def __init__(self, u: fem.Function, quadrature_degree: int):
+        super().__init__(u, quadrature_degree)
+        mesh = u.function_space.mesh
+        jacobian = fem.Expression(ufl.Jacobian(mesh), self._points).eval(self._cells).reshape(-1, 3, 3)
+        self._edges = jacobian[:, :, :2]
+        self._rest = edge_frame(self._edges[:, :, 0], self._edges[:, :, 1])
+
+    def rotation_of(self, F: np.ndarray) -> np.ndarray:
+        """``G(F E₀, F E₁) G(E₀, E₁)ᵀ`` at every point."""
+        current = F @ self._edges
+        return edge_frame(current[:, :, 0], current[:, :, 1]) @ self._rest.transpose(0, 2, 1)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -264,9 +342,14 @@ class Model:
     """
 
     name: str
-    needs_rotation: bool = False     #: the strain uses the rotation ``R`` of ``F = R U`` (a :class:`PolarRotation`)
+    needs_rotation: bool = False     #: the strain uses a rotation ``R`` of ``F`` (:meth:`rotation_field`)
     finite_strain: bool = True       #: frame invariant; an element with ``det F <= 0`` makes an increment fail
-    symmetric_tangent: bool = True   #: the exact tangent is symmetric (CG applies; else GMRES)
+    symmetric_tangent: bool = True   #: the solver's tangent is symmetric (CG applies; else GMRES)
+    exact_tangent: bool = True       #: the solver's tangent is the exact derivative of the residual (adjoints apply)
+
+    def rotation_field(self, u: fem.Function, quadrature_degree: int) -> PolarRotation:
+        """The rotation field the model's stress uses (for models with ``needs_rotation``): the polar rotation."""
+        return PolarRotation(u, quadrature_degree)
 
     def strain(self, u: fem.Function, rotation: PolarRotation | None = None) -> ufl.core.expr.Expr:
         """The model's strain measure of ``u``."""
@@ -320,7 +403,7 @@ class Corotational(Model):
 
     def strain(self, u, rotation=None):
         """``ε_c = sym(RᵀF) - I``."""
-        if rotation is None:
+        if rotation is None or isinstance(rotation, EdgeRotation):
             raise InputError("the corotational model needs a PolarRotation of the displacement")
         return ufl.sym(rotation.R.T * deformation_gradient(u)) - ufl.Identity(len(u))
 
@@ -334,11 +417,78 @@ class Corotational(Model):
         return corotational_rotation_tangent(u, du, material, orientation, rotation)
 
 
+class CorotationalSOFA(Corotational):
+    """SOFA's corotational tetrahedron: ``P = R σ(sym(RᵀF) - I)`` with the edge rotation ``R`` (:class:`EdgeRotation`).
+
+    The tangent is the derivative at frozen ``R`` (``R C Rᵀ``: symmetric, positive definite, never loses
+    ellipticity); it is not the exact derivative of the residual, so Newton converges linearly and adjoint
+    sensitivities do not apply.
+    """
+
+    def rotation_field(self, u, quadrature_degree):
+        """An :class:`EdgeRotation` of ``u``."""
+        return EdgeRotation(u, quadrature_degree)
+
+    def strain(self, u, rotation=None):
+        """``ε_c = sym(RᵀF) - I`` with the edge rotation."""
+        if not isinstance(rotation, EdgeRotation):
+            raise InputError("the corotational_sofa model needs an EdgeRotation of the displacement "
+                             "(model.rotation_field(u, quadrature_degree))")
+        return ufl.sym(rotation.R.T * deformation_gradient(u)) - ufl.Identity(len(u))
+
+    def rotation_tangent(self, u, du, material, orientation, rotation):
+        """Nothing: the tangent is the derivative at frozen ``R``, as in SOFA."""
+        return None
+
+
+def bonet_burton_energy(F: ufl.core.expr.Expr, material: MaterialField, orientation: fem.Function | None
+                        ) -> ufl.core.expr.Expr:
+    """Bonet–Burton transversely isotropic neo-Hookean energy per unit reference volume (module docstring).
+
+    ``ψ = μ_T/2 (I₁ - 3) - μ_T ln J + λ/2 (J - 1)² + [a + b ln J + c (I₄ - 1)](I₄ - 1) - a/2 (I₅ - 1)``, with
+    ``C = FᵀF``, ``I₁ = tr C``, ``I₄ = a·C a``, ``I₅ = a·C² a`` and ``a = μ_T - μ_L``, ``b = α/2``, ``c = β/8`` from
+    the Spencer moduli; an isotropic material (``μ_T = μ_L = μ``, ``α = β = 0``) gives the compressible neo-Hookean
+    energy ``μ/2 (I₁ - 3) - μ ln J + λ/2 (J - 1)²``.
+    """
+    m = material.moduli
+    C = F.T * F
+    J = ufl.det(F)
+    mu = m["mu"] if material.isotropic else m["mu_T"]
+    psi = 0.5 * mu * (ufl.tr(C) - 3) - mu * ufl.ln(J) + 0.5 * m["lmbda"] * (J - 1) ** 2
+    if material.isotropic:
+        return psi
+    if orientation is None:
+        raise InputError("a transversely isotropic material needs an orientation field (the unit l axis per cell)")
+    a = orientation
+    I4, I5 = ufl.inner(a, C * a), ufl.inner(C * a, C * a)
+    coef_a, coef_b, coef_c = m["mu_T"] - m["mu_L"], 0.5 * m["alpha"], 0.125 * m["beta"]
+    return psi + (coef_a + coef_b * ufl.ln(J) + coef_c * (I4 - 1)) * (I4 - 1) - 0.5 * coef_a * (I5 - 1)
+
+
+class BonetBurton(Model):
+    """Hyperelastic TI neo-Hooke of Bonet and Burton: ``P = ∂ψ/∂F`` (:func:`bonet_burton_energy`), exact tangent."""
+
+    def strain(self, u, rotation=None):
+        """The Green–Lagrange strain ``E = (FᵀF - I)/2`` (what the energy is a function of)."""
+        return green_lagrange(deformation_gradient(u))
+
+    def energy(self, u, material, orientation, rotation=None):
+        """:func:`bonet_burton_energy` of ``F = I + ∇u``."""
+        return bonet_burton_energy(deformation_gradient(u), material, orientation)
+
+    def first_piola_kirchhoff(self, u, material, orientation, rotation=None):
+        """``P = ∂ψ/∂F`` by ``ufl.diff``."""
+        F = ufl.variable(deformation_gradient(u))
+        return ufl.diff(bonet_burton_energy(F, material, orientation), F)
+
+
 #: The constitutive models by name.
 MODELS: dict[str, Model] = {
     "linear": Linear("linear", finite_strain=False),
     "svk": SaintVenantKirchhoff("svk"),
     "corotational": Corotational("corotational", needs_rotation=True, symmetric_tangent=False),
+    "bonet_burton": BonetBurton("bonet_burton"),
+    "corotational_sofa": CorotationalSOFA("corotational_sofa", needs_rotation=True, exact_tangent=False),
 }
 
 

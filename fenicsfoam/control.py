@@ -281,18 +281,18 @@ class InverseController:
         from fenicsfoam.scene import Scene, load_scene
 
         scene = source if isinstance(source, Scene) else load_scene(source)
-        if scene.builder != "tripod" or not scene.servos:
-            raise InputError(f"scene {scene.name!r}: inverse control needs the tripod builder with "
-                             "loads.servos = true")
+        if scene.builder != "tripod" or len(scene.servos) != 3:
+            raise InputError(f"scene {scene.name!r}: inverse control needs the tripod builder with three servos "
+                             "(loads.servos = true, or three [loads.servo.NAME])")
         self.servo_range = _check_range(servo_range)
         self.tolerances = {**TOLERANCES, **(tolerances or {})}
         if not (isinstance(max_iterations, int) and max_iterations >= 1):
             raise InputError(f"max_iterations must be an integer >= 1, got {max_iterations!r}")
         self.max_iterations = max_iterations
-        initial = [0.0, 0.0, 0.0]
+        initial = dict.fromkeys(scene.servos, 0.0)
         for step in scene.steps:
-            if step.servo_deg is not None:
-                initial = list(step.servo_deg)
+            initial.update(step.servos)
+        initial = list(initial.values())
         self.initial_deg = np.array(initial, dtype=float)
         self._check_initial(self.initial_deg)  # before anything is built
         self.design = SceneDesign(scene, comm, probes=tuple(TARGET_PROBES))
@@ -594,7 +594,8 @@ def control_servos(source, targets: Mapping[str, float], *, comm=None, servo_ran
 # The command
 # --------------------------------------------------------------------------------------------------
 def _arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("scene", type=cli.nonempty_path, help="a Tripod scene file (TOML) with loads.servos = true")
+    parser.add_argument("scene", type=cli.nonempty_path,
+                        help="a Tripod scene file (TOML) with three servos (loads.servos = true or [loads.servo.NAME])")
     parser.add_argument("--target", action="append", default=[], metavar="NAME=VALUE", required=True,
                         help="a target pose component: center_height (m), center_rotation, center_tilt_x, "
                              "center_tilt_y (deg); repeat for up to three")

@@ -51,7 +51,8 @@ __all__ = ["MISFIT_SCALES", "DesignHistory", "DesignResult", "OrientationDesign"
 
 logger = logging.getLogger(__name__)
 
-#: The servo parameters (the Tripod's three horns), in order.
+#: The servo parameters of ``loads.servos = true`` (the Tripod's three horns), in order; a scene with
+#: ``[loads.servo.NAME]`` has its own names (:attr:`SceneDesign.servos`).
 SERVOS = ("servo0", "servo1", "servo2")
 _EZ = np.array([0.0, 0.0, 1.0])
 
@@ -169,8 +170,8 @@ class SceneDesign:
     # ----------------------------------------------------------------------------------------------
     @property
     def servos(self) -> tuple[str, ...]:
-        """The servo parameters of the scene (empty without ``loads.servos``)."""
-        return SERVOS if self.scene.servos else ()
+        """The servo parameters of the scene: its servo actuators' names (``servo0..2`` with ``loads.servos``)."""
+        return tuple(self.scene.servos)
 
     def parameters(self) -> list[str]:
         """The parameter names this scene has (module docstring)."""
@@ -200,8 +201,8 @@ class SceneDesign:
     def get(self, name: str):
         """The current value of a parameter (a float, or an array over the owned cells)."""
         self._check(name)
-        if name in SERVOS:
-            return self.servo_deg()[SERVOS.index(name)]
+        if name in self.servos:
+            return self.servo_deg()[self.servos.index(name)]
         if name == "E_solid":
             values = {f.E_solid for f in self.cells.foams.values()}
             if len(values) != 1:
@@ -228,10 +229,10 @@ class SceneDesign:
             from fenicsfoam.scene import vary_scene
             self.scene = vary_scene(self.scene, {n: float(v) for n, v in scalars.items()})
         material, orientation = False, False
-        servo = list(self.servo_deg()) if any(n in SERVOS for n in values) else None
+        servo = list(self.servo_deg()) if any(n in self.servos for n in values) else None
         for name, value in values.items():
-            if name in SERVOS:
-                servo[SERVOS.index(name)] = float(value)
+            if name in self.servos:
+                servo[self.servos.index(name)] = float(value)
             elif name == "E_solid":
                 for foam in self.cells.foams.values():
                     foam.E_solid = float(value)
@@ -261,22 +262,29 @@ class SceneDesign:
         if orientation:
             self.orientation.apply()
 
-    def servo_deg(self) -> tuple[float, float, float]:
-        """The last step's servo angles (deg); those in force before it where it gives none."""
+    def _rest_deg(self, name: str) -> float:
+        return self.scene.servos[name]["setup_deg"]
+
+    def servo_deg(self) -> tuple[float, ...]:
+        """The last step's servo angles from rest (deg), in the order of :attr:`servos`.
+
+        Where the last step gives none, those in force before it.
+        """
         if not self.servos:
-            raise InputError(f"scene {self.scene.name!r} has no servos (loads.servos = true)")
-        angles = [0.0, 0.0, 0.0]
+            raise InputError(f"scene {self.scene.name!r} has no servos (loads.servos = true or [loads.servo.NAME])")
+        angles = [0.0] * len(self.servos)
         for step in self.steps:
-            for i, name in enumerate(SERVOS):
+            for i, name in enumerate(self.servos):
                 if name in step.angles:
-                    angles[i] = math.degrees(step.angles[name])
+                    angles[i] = math.degrees(step.angles[name]) - self._rest_deg(name)
         return tuple(angles)
 
     def set_servo_deg(self, angles: Sequence[float]) -> None:
-        """Set the last step's servo angles (deg)."""
+        """Set the last step's servo angles from rest (deg), in the order of :attr:`servos`."""
         from dataclasses import replace
         last = self.steps[-1]
-        self.steps[-1] = replace(last, angles={n: math.radians(float(a)) for n, a in zip(SERVOS, angles)})
+        self.steps[-1] = replace(last, angles={**last.angles, **{n: math.radians(self._rest_deg(n) + float(a))
+                                                                for n, a in zip(self.servos, angles)}})
 
     # ----------------------------------------------------------------------------------------------
     # Solves
@@ -304,7 +312,8 @@ class SceneDesign:
         The move takes ``ceil(max |Δθ| / increment_deg)`` increments (halved on failure by the solver).
         """
         from fenicsfoam.solver import LoadStep
-        current = np.degrees([self.problem.loads.angles[n] for n in SERVOS])
+        current = np.degrees([self.problem.loads.angles[n] for n in self.servos]) - [self._rest_deg(n)
+                                                                                     for n in self.servos]
         change = float(np.max(np.abs(np.asarray(angles, dtype=float) - current)))
         self.set_servo_deg(angles)
         self.solves += 1
@@ -340,7 +349,7 @@ class SceneDesign:
                                  f"{differentiable}")
         from fenicsfoam.sensitivity import material_coefficients
 
-        material = [p for p in parameters if p not in SERVOS and not p.startswith("orientation")]
+        material = [p for p in parameters if p not in self.servos and not p.startswith("orientation")]
         oriented = [p for p in parameters if p.startswith("orientation")]
         coefficients = material_coefficients(self.problem)
         fields = {}
@@ -349,7 +358,7 @@ class SceneDesign:
             derivatives = self.cells.derivatives()
         if oriented:
             fields["orientation"] = coefficients["orientation"]
-        motions = [p for p in parameters if p in SERVOS]
+        motions = [p for p in parameters if p in self.servos]
         adjoint = self.adjoint
         adjoint.factor()
         result = {}

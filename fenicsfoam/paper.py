@@ -18,6 +18,8 @@ TABLE_I = {
     "tripod_case_b": {"angle": ((-9.31, 8.15, 27.21), (0.0, 5.53, 22.1)),
                       "height": ((68.67, 80.73, 87.0), (73.5, 85.8, 94.0))},
 }
+# The flat-plate simplifications of the same robots (``tripod_case_a_flat.toml``, ``tripod_case_b_flat.toml``).
+TABLE_I.update({f"{name}_flat": values for name, values in list(TABLE_I.items())})
 
 
 def deltas(values: Iterable[float]) -> tuple[float, float]:

@@ -90,6 +90,10 @@ class Adjoint:
         if any(hasattr(load, "add_jacobian") for load in problem.external.values()):
             raise InputError("adjoint sensitivities do not cover cable loads (their tangent is assembled outside the "
                              "forms): remove the scene's cables to differentiate it")
+        if not problem.model.exact_tangent:
+            raise InputError(f"adjoint sensitivities need the exact tangent; the {problem.model.name!r} model's "
+                             "tangent is approximate (the rotation held fixed): use 'corotational', 'bonet_burton', "
+                             "'svk' or 'linear' to differentiate this problem")
         self.problem = problem
         V = problem.V
         self._lam = fem.Function(V, name="adjoint")

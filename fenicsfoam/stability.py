@@ -2,8 +2,9 @@
 
 At a deformation gradient ``F`` the tangent of a model is ``A_ijkl = ∂P_ij/∂F_kl``, ``P`` the first
 Piola–Kirchhoff stress; for the corotational model this is the exact tangent that Newton uses
-(:func:`fenicsfoam.constitutive.corotational_rotation_tangent` included). The acoustic tensor of a unit
-direction ``n`` is
+(:func:`fenicsfoam.constitutive.corotational_rotation_tangent` included; for ``corotational_sofa``, whose
+tangent is the derivative at frozen ``R``, the tangent Newton uses, which cannot lose ellipticity). The acoustic
+tensor of a unit direction ``n`` is
 
     Q_ik(n) = A_ijkl n_j n_l,
 
@@ -233,7 +234,7 @@ def ellipticity_margin(u: fem.Function, model: str | Model, material: MaterialFi
     if quadrature_degree is None:
         quadrature_degree = 2 * (u.function_space.ufl_element().degree() - 1)
     if model.needs_rotation and rotation is None:
-        rotation = PolarRotation(u, quadrature_degree)
+        rotation = model.rotation_field(u, quadrature_degree)
     mesh = u.function_space.mesh
     comm = mesh.comm
     tdim = mesh.topology.dim

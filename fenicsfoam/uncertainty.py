@@ -46,7 +46,7 @@ import numpy as np
 
 from fenicsfoam.material import tabulated_regions
 from foambase.errors import InputError
-from foambase.files import write_json_atomic
+from foambase.files import write_json_atomic, write_text_atomic
 
 __all__ = ["METHOD", "UncertaintyError", "UncertaintyResult", "run_with_uncertainty", "seed_tables"]
 
@@ -186,7 +186,7 @@ class UncertaintyResult:
 
 
 def run_with_uncertainty(source, out_dir: str | os.PathLike | None = None, *,
-                         samples_csv: str | os.PathLike | None = None, comm=None) -> UncertaintyResult:
+                         samples_csv: str | os.PathLike | None = None, comm=None, **options) -> UncertaintyResult:
     """Run a scene with the mean foam table and once per seed; ``probes_std`` per step (see the module docstring).
 
     Parameters
@@ -202,6 +202,8 @@ def run_with_uncertainty(source, out_dir: str | os.PathLike | None = None, *,
         samples that table was aggregated from.
     comm
         MPI communicator (default ``MPI.COMM_WORLD``).
+    options
+        For the nominal run (:func:`~fenicsfoam.scene.run_scene`'s ``solver``, ``force``, ``echo``).
 
     Raises
     ------
@@ -225,7 +227,7 @@ def run_with_uncertainty(source, out_dir: str | os.PathLike | None = None, *,
     tmp = comm.bcast(tempfile.mkdtemp(prefix="fenicsfoam-seeds-") if comm.rank == 0 and foams else None, root=0)
     try:
         seeds = _seed_scenes(scene, samples_csv, tmp, comm) if foams else {}  # every variation, before any work
-        nominal = run_scene(scene, out_dir, comm=comm)
+        nominal = run_scene(scene, out_dir, comm=comm, **options)
         labels = [s.label for s in nominal.steps]
         result = UncertaintyResult(nominal)
         if not foams:
@@ -258,6 +260,8 @@ def run_with_uncertainty(source, out_dir: str | os.PathLike | None = None, *,
             std = rows.std(axis=0, ddof=1) if len(rows) > 1 else np.full(width, math.nan)
             result.probes_std.append(_unflatten(std, scene.probes, sizes))
     if out_dir is not None and comm.rank == 0:
+        from fenicsfoam.scene.outputs import probes_csv
+        write_text_atomic(Path(out_dir) / "probes.csv", probes_csv(nominal, result.probes_std))
         write_json_atomic(Path(out_dir) / "summary.json", result.summary())
     comm.Barrier()
     return result

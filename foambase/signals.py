@@ -11,6 +11,12 @@ therefore also registered here (:func:`register_temporary`; :func:`foambase.file
 series do), and a watcher thread, woken by the signal itself (``signal.set_wakeup_fd``), removes them on every
 rank ``GRACE_S`` after a signal unless the main thread has taken over by then; when the main thread has, the
 interruption removes whatever is still registered as it leaves :func:`interruptible`.
+
+A main thread busy in one long call of compiled code (a sparse factorization, a large assembly) does not run Python
+for minutes, so the watcher also ends the process for it: ``FORCE_S`` after the signal, if the main thread has still
+not reacted, the last-resort actions registered with :func:`register_last_resort` run in the watcher thread (a scene
+run marks its ``summary.json`` interrupted and prints the steps done) and the process exits with ``128 + signal
+number`` at once (``os._exit``).
 """
 
 from __future__ import annotations
@@ -22,19 +28,22 @@ import shutil
 import signal
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
-__all__ = ["GRACE_S", "Interrupted", "discard_temporary", "interruptible", "register_temporary",
-           "remove_temporaries"]
+__all__ = ["FORCE_S", "GRACE_S", "Interrupted", "discard_last_resort", "discard_temporary", "interruptible",
+           "register_last_resort", "register_temporary", "remove_temporaries"]
 
 #: Seconds the watcher thread leaves the main thread to react to a signal before it removes the temporaries.
 GRACE_S = 0.3
+#: Seconds after a signal at which a main thread that has not reacted is ended by the watcher (module docstring).
+FORCE_S = 5.0
 _SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 _lock = threading.Lock()
 _temporaries: dict[Path, None] = {}
 _main_reacted = threading.Event()
+_last_resort: list[Callable[[str], None]] = []
 
 
 class Interrupted(KeyboardInterrupt):
@@ -60,6 +69,19 @@ def discard_temporary(path: str | os.PathLike) -> None:
     """Forget a temporary registered by :func:`register_temporary` (it was moved into place or removed)."""
     with _lock:
         _temporaries.pop(Path(path), None)
+
+
+def register_last_resort(action: Callable[[str], None]) -> None:
+    """Run ``action(signal name)`` in the watcher thread if the main thread is stuck ``FORCE_S`` after a signal."""
+    with _lock:
+        _last_resort.append(action)
+
+
+def discard_last_resort(action: Callable[[str], None]) -> None:
+    """Forget an action of :func:`register_last_resort`."""
+    with _lock:
+        if action in _last_resort:
+            _last_resort.remove(action)
 
 
 def remove_temporaries() -> None:
@@ -91,10 +113,22 @@ def _watch(fd: int, stop: threading.Event) -> None:
             return
         if stop.is_set():
             return
-        if any(byte in _SIGNALS for byte in data):
-            time.sleep(GRACE_S)
-            if not _main_reacted.is_set():  # the main thread is stuck (e.g. waiting in MPI): clean up for it
-                remove_temporaries()
+        received = [byte for byte in data if byte in _SIGNALS]
+        if received:
+            if _main_reacted.wait(GRACE_S) or stop.is_set():
+                continue
+            remove_temporaries()  # the main thread is stuck (e.g. waiting in MPI): clean up for it
+            if _main_reacted.wait(FORCE_S - GRACE_S) or stop.is_set():
+                continue
+            name = signal.Signals(received[0]).name
+            with _lock:
+                actions = list(_last_resort)
+            for action in actions:
+                try:
+                    action(name)
+                except Exception:  # noqa: BLE001 - the process ends anyway; the others still run
+                    pass
+            os._exit(128 + received[0])
 
 
 @contextlib.contextmanager

@@ -1,6 +1,6 @@
 """Graded arm–centre transition of Tripod case A: the sharp scene against blends of growing width, on two meshes.
 
-Printed transitions between foam regions are graded, not sharp. ``demos/scenes/tripod_case_a_graded.toml`` blends
+Printed transitions between foam regions are graded, not sharp. ``demos/scenes/tripod_case_a_graded_flat.toml`` blends
 the density and γ of case A's arms (TI, 30 %, γ = 0.1) and centre (isotropic, 15 %, γ = 1) across their boundary
 (r = 20 mm) over 5 mm (:mod:`fenicsfoam.grading`). This study runs case A sharp (no blend), with a blend of width 0
 (which must reproduce the sharp scene: the check), and with widths 2.5, 5 and 10 mm, on the scene's mesh
@@ -22,7 +22,7 @@ from foambase.cli import report_checks
 from foambase.files import write_text_atomic
 from foambase.logs import setup_logging
 
-SCENE = Path(__file__).resolve().parents[1] / "demos" / "scenes" / "tripod_case_a_graded.toml"
+SCENE = Path(__file__).resolve().parents[1] / "demos" / "scenes" / "tripod_case_a_graded_flat.toml"
 
 
 def run(h: float, width: float | None, comm) -> dict:

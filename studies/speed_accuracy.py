@@ -12,7 +12,7 @@
 #
 # - the cross-check of the FFT reference with the periodic FEM RVE (P1, P2) on the conforming mesh of the same
 #   smooth foam (meshes.rve.mesh_rve): the relative difference of each constant;
-# - the Tripod, case B, as `demos/scenes/tripod_case_b.toml` declares it (the `make demo` scene: foam_material
+# - the Tripod, case B, as `demos/scenes/tripod_case_b_flat.toml` declares it (the `make demo` scene: foam_material
 #   TI fit of the 15 %, γ = 0.1 foam, spiral l field, its load steps), built through ElasticityProblem so that
 #   the mesh is shared by the settings: centre height and rotation at rest / middle (19°) / top (38°) for mesh
 #   size × degree × model, against the finest P2 of the same model, with the small-strain validity measure of
@@ -70,7 +70,7 @@ TARGETS = (0.1, 0.03, 0.01, 0.003)
 BEAM = {"length": 0.25, "width": 0.015, "height": 0.015}
 BEAM_MATERIAL = {"E": 1.0e6, "nu": 0.3, "rho": 180.0}
 #: The Tripod study's scene (what `make demo` runs); its mesh size, degree and model are varied, nothing else.
-TRIPOD_SCENE = Path(__file__).resolve().parents[1] / "demos" / "scenes" / "tripod_case_b.toml"
+TRIPOD_SCENE = Path(__file__).resolve().parents[1] / "demos" / "scenes" / "tripod_case_b_flat.toml"
 #: The load steps the study reports (the scene's); the error is measured at the last one.
 TRIPOD_STEPS = ("rest", "middle", "top")
 
@@ -396,7 +396,8 @@ def tripod_study(comm: MPI.Comm, size: dict) -> list[dict]:
     from fenicsfoam.materials import foam_material
     from fenicsfoam.probes import CenterHeight, CenterRotation
     from fenicsfoam.scene import load_scene, spiral_directions
-    from fenicsfoam.solver import ConvergenceError, ElasticityProblem, LoadStep
+    from fenicsfoam.scene.build import load_steps
+    from fenicsfoam.solver import ConvergenceError, ElasticityProblem
     from fenicsfoam.validity import small_strain_validity
     from meshes.tripod import ARM_END, RING, TripodGeometry, make_tripod
 
@@ -409,9 +410,7 @@ def tripod_study(comm: MPI.Comm, size: dict) -> list[dict]:
     geometry = dict(scene.geometry)
     del geometry["h"]
     order = geometry.pop("order")
-    steps = [LoadStep(s.label, gravity=s.gravity, increments=s.increments,
-                      angles={} if s.servo_deg is None else
-                      {f"servo{i}": np.radians(angle) for i, angle in enumerate(s.servo_deg)}) for s in scene.steps]
+    steps = load_steps(scene)  # the scene's schedule: its servo angles in radians
     rows = []
     for h in size["tripod_h"]:
         tripod = make_tripod(comm, h, TripodGeometry(**geometry), order)

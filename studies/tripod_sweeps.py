@@ -1,8 +1,8 @@
 """Design sweeps of the Tripod's foam plates: what twist and lift a designer gets for each layout.
 
-- Case A (`demos/scenes/tripod_case_a.toml`): the angle between each arm's l axis and the arm, 0°–90°, turned
+- Case A (`demos/scenes/tripod_case_a_flat.toml`): the angle between each arm's l axis and the arm, 0°–90°, turned
   counter-clockwise (seen from above) on all three arms; 0° and 90° are mirror symmetric layouts (no twist).
-- Case B (`demos/scenes/tripod_case_b.toml`): the pitch of the counter-clockwise spiral, 0° (circles) to 90°
+- Case B (`demos/scenes/tripod_case_b_flat.toml`): the pitch of the counter-clockwise spiral, 0° (circles) to 90°
   (radial); both ends are mirror symmetric (no twist).
 
 Everything else is the shipped scene (its foam from today's foam table, its servo schedule rest / middle 19° /
@@ -47,7 +47,7 @@ FIELDS = ("design", "value_deg", "degree", "status", "dh_middle_mm", "dh_top_mm"
 
 def case_a(offset_deg: float) -> dict:
     """Case A with each arm's l axis ``offset_deg`` counter-clockwise from the arm."""
-    scene = tomllib.loads((SCENES / "tripod_case_a.toml").read_text())
+    scene = tomllib.loads((SCENES / "tripod_case_a_flat.toml").read_text())
     scene["orientation"]["directions"] = {
         f"arm{i}": [math.cos(math.radians(a + offset_deg)), math.sin(math.radians(a + offset_deg)), 0.0]
         for i, a in enumerate(ARM_DEG)}
@@ -56,7 +56,7 @@ def case_a(offset_deg: float) -> dict:
 
 def case_b(pitch_deg: float) -> dict:
     """Case B with a counter-clockwise spiral of pitch ``pitch_deg``."""
-    scene = tomllib.loads((SCENES / "tripod_case_b.toml").read_text())
+    scene = tomllib.loads((SCENES / "tripod_case_b_flat.toml").read_text())
     scene["orientation"]["pitch_deg"] = pitch_deg
     return scene
 

@@ -104,7 +104,7 @@ def test_the_reaction_to_gravity_alone_does_not_depend_on_E_solid(model):
 @pytest.mark.slow
 def test_recovers_a_known_E_solid_from_the_tripod_torsion():
     """A nonlinear probe (the Kabsch twist) of a nonlinear model, as a change from rest."""
-    scene = tomllib.loads((SCENES / "tripod_case_b.toml").read_text())
+    scene = tomllib.loads((SCENES / "tripod_case_b_flat.toml").read_text())
     scene["geometry"]["h"] = 0.0075
     scene["outputs"] = {"xdmf": False, "png": False}
     target = synthetic(scene, "center_rotation", "top", relative_to="rest")
@@ -152,7 +152,7 @@ def test_a_scene_without_foam_or_with_two_moduli_is_refused():
     scene["regions"]["beam"] = {"tags": "beam", "material": "isotropic", "E": 3e5, "nu": 0.3, "rho": 200.0}
     with pytest.raises(CalibrationError, match=r"scene 'beam_iso' has no foam region.*beam \(isotropic\)"):
         calibrate_E_solid(scene, "tip_deflection", "gravity", -0.048)
-    scene = tomllib.loads((SCENES / "tripod_case_a.toml").read_text())
+    scene = tomllib.loads((SCENES / "tripod_case_a_flat.toml").read_text())
     scene["regions"]["centre"]["E_solid"] = 10e6
     with pytest.raises(CalibrationError, match=r"different E_solid \(\{'arms': 12000000\.0, 'centre': 10000000\.0\}\)"):
         calibrate_E_solid(scene, "center_height", "top", 0.02, relative_to="rest")
@@ -160,7 +160,7 @@ def test_a_scene_without_foam_or_with_two_moduli_is_refused():
 
 def test_a_probe_that_does_not_depend_on_E_solid_is_refused():
     """Linear model, no gravity, servos only: the displacement is the prescribed motion's, whatever E_solid."""
-    scene = tomllib.loads((SCENES / "tripod_case_b.toml").read_text())
+    scene = tomllib.loads((SCENES / "tripod_case_b_flat.toml").read_text())
     scene["geometry"]["h"] = 0.0075
     scene["fem"]["model"] = "linear"
     del scene["loads"]["gravity"]
@@ -314,7 +314,7 @@ def test_two_tables_two_calibrations_each_scene_takes_its_own(tmp_path, monkeypa
         return data
 
     monkeypatch.setattr(experiments, "load_scene_dict", beams_equiaxed)
-    names = ("beam_ti_y", "tripod_case_b")
+    names = ("beam_ti_y", "tripod_case_b_flat")
     assert experiments.scene_tables([experiments.scene(n, True, 1) for n in names]) == ["equiaxed", "cube"]
     for name, table in zip(names, ("equiaxed", "cube")):
         data = experiments.scene(name, True, 1, files)

@@ -24,7 +24,7 @@ UNSEEN = [30.0, 22.0, 35.0]  # the forward run's angles; the controller starts f
 
 
 def case_b(**last_step) -> dict:
-    data = tomllib.loads((ROOT / "demos" / "scenes" / "tripod_case_b.toml").read_text())
+    data = tomllib.loads((ROOT / "demos" / "scenes" / "tripod_case_b_flat.toml").read_text())
     data["geometry"]["h"] = 0.008
     data["outputs"] = {"png": False, "xdmf": False}
     data["probes"] = PROBES
@@ -103,7 +103,7 @@ def test_bad_input_is_refused_before_any_work(targets, kwargs, message, monkeypa
 
 def test_a_scene_without_servos_is_refused():
     data = tomllib.loads((ROOT / "demos" / "scenes" / "beam_ti_z.toml").read_text())
-    with pytest.raises(InputError, match="needs the tripod builder with loads.servos"):
+    with pytest.raises(InputError, match="needs the tripod builder with three servos"):
         control_servos(parse_scene(data), {"center_height": 0.02})
 
 

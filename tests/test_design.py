@@ -22,7 +22,7 @@ SCALES = {"orientation.offset_deg": 45.0, "density:arms": 0.1, "density:centre":
 
 
 def case_a(comm=None) -> SceneDesign:
-    data = tomllib.loads((ROOT / "demos" / "scenes" / "tripod_case_a.toml").read_text())
+    data = tomllib.loads((ROOT / "demos" / "scenes" / "tripod_case_a_flat.toml").read_text())
     data["geometry"]["h"] = 0.01
     data["outputs"] = {"png": False, "xdmf": False}
     # l along the arms turned by offset_deg = 30°: case A's l axes, with the offset the angle from the arms
@@ -98,7 +98,7 @@ def test_match_probes_recovers_an_unseen_offset_and_centre_density():
 
 def test_match_probes_recovers_case_b_spiral_pitch():
     def case_b():
-        data = tomllib.loads((ROOT / "demos" / "scenes" / "tripod_case_b.toml").read_text())
+        data = tomllib.loads((ROOT / "demos" / "scenes" / "tripod_case_b_flat.toml").read_text())
         data["geometry"]["h"] = 0.01
         data["outputs"] = {"png": False, "xdmf": False}
         return SceneDesign(parse_scene(data))

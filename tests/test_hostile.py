@@ -252,8 +252,9 @@ def test_a_rerun_replaces_the_previous_run_and_keeps_other_files(work, capsys):
     out = work / "out"
     (work / "one.toml").write_text(scene_text("first", "second"))
     assert fenicsfoam_main(["run", str(work / "one.toml"), "--out", str(out)]) == 0
-    assert outputs_of(out) == ["first.png", "probes.csv", "second.png", "solution.h5", "solution.npz",
-                               "solution.xdmf", "summary.json"]
+    assert outputs_of(out) == ["first.png", "probes.csv", "run.log", "second.png", "solution.h5", "solution.npz",
+                               "solution.pvd", "solution.xdmf", "solution_000_first.vtu", "solution_001_second.vtu",
+                               "summary.json"]
     assert sorted(json.loads((out / "summary.json").read_text())["files"]) == outputs_of(out)
     (out / "notes.txt").write_text("mine")
     (out / ".solution.stale").mkdir()  # as a killed run leaves them
@@ -262,8 +263,9 @@ def test_a_rerun_replaces_the_previous_run_and_keeps_other_files(work, capsys):
     before = snapshot(work, exclude=out)
     assert fenicsfoam_main(["run", str(work / "two.toml"), "--out", str(out)]) == 0
     summary = json.loads((out / "summary.json").read_text())
-    assert outputs_of(out) == ["notes.txt", "probes.csv", "summary.json", "third.png"]
-    assert summary["status"] == "complete" and sorted(summary["files"]) == ["probes.csv", "summary.json", "third.png"]
+    assert outputs_of(out) == ["notes.txt", "probes.csv", "run.log", "summary.json", "third.png"]
+    assert summary["status"] == "complete" and sorted(summary["files"]) == ["probes.csv", "run.log", "summary.json",
+                                                                             "third.png"]
     assert [s["label"] for s in summary["steps"]] == ["third"] and summary["error"] is None
     assert snapshot(work, exclude=out) == before
     mask = os.umask(0)
@@ -342,7 +344,8 @@ def test_an_interrupted_run_says_so_and_leaves_no_temporary_files(work, sig, cod
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "interrupted" and f"interrupted by {signal.Signals(sig).name}" in summary["error"]
     assert len(summary["steps"]) < 40
-    assert set(outputs_of(out)) <= {"summary.json", "probes.csv"}  # no .solution.* nor *.tmp left
+    done = {"solution.pvd", *(f"solution_{i:03d}_s{i}.vtu" for i in range(len(summary["steps"])))}
+    assert set(outputs_of(out)) <= {"summary.json", "probes.csv", "run.log", *done}  # no .solution.* nor *.tmp
     after = snapshot(work, exclude=out)
     assert after == {k: v for k, v in before.items() if not k.startswith("out")}
 
@@ -356,7 +359,8 @@ def test_sigint_through_mpirun_stops_every_rank_and_removes_the_temporaries(work
     summary = json.loads((out / "summary.json").read_text())
     # rank 0 writes "interrupted" when it regains control; if it was waiting in MPI it is killed: "incomplete"
     assert summary["status"] in ("interrupted", "incomplete") and len(summary["steps"]) < 40
-    assert set(outputs_of(out)) <= {"summary.json", "probes.csv"}
+    done = {"solution.pvd", *(f"solution_{i:03d}_s{i}.vtu" for i in range(len(summary["steps"]) + 1))}
+    assert set(outputs_of(out)) <= {"summary.json", "probes.csv", "run.log", *done}
 
 
 def test_a_rank_waiting_in_mpi_removes_its_temporaries_on_a_signal(tmp_path):

@@ -382,7 +382,7 @@ def test_reactions_on_cell_regions_carry_the_tripod():
     import ufl
 
     scenes = Path(__file__).resolve().parents[1] / "demos" / "scenes"
-    scene = tomllib.loads((scenes / "tripod_silicone.toml").read_text())
+    scene = tomllib.loads((scenes / "tripod_silicone_flat.toml").read_text())
     scene["geometry"]["h"] = 0.006
     scene["steps"] = scene["steps"][:1]
     scene["outputs"] = dict(NO_FILES)

@@ -48,7 +48,7 @@ def beam_scene(**regions):
 
 
 def tripod_scene(material, orientation=None, h=COARSE_TRIPOD_H):
-    scene = tomllib.loads((SCENES / "tripod_case_b.toml").read_text())
+    scene = tomllib.loads((SCENES / "tripod_case_b_flat.toml").read_text())
     scene["geometry"]["h"] = h
     scene["regions"] = {"plate": {"tags": "plate", **material}}
     scene["outputs"] = dict(NO_FILES)
@@ -170,7 +170,8 @@ def test_file_errors_name_the_file_and_toml_line(tmp_path):
 def test_shipped_scenes_are_valid():
     names = sorted(p.stem for p in SCENES.glob("*.toml"))
     assert names == ["beam_iso", "beam_ti_y", "beam_ti_z", "finger_blocked", "finger_cable", "finger_pneumatic",
-                     "tripod_case_a", "tripod_case_a_graded", "tripod_case_b", "tripod_silicone"]
+                     "tripod_case_a", "tripod_case_a_flat", "tripod_case_a_graded", "tripod_case_a_graded_flat",
+                     "tripod_case_b", "tripod_case_b_flat", "tripod_silicone", "tripod_silicone_flat"]
     for path in SCENES.glob("*.toml"):
         assert load_scene(path).name == path.stem
 

@@ -16,7 +16,7 @@ SCENES = Path(__file__).resolve().parents[1] / "demos" / "scenes"
 
 
 def case_a(h=0.01):
-    data = tomllib.loads((SCENES / "tripod_case_a.toml").read_text())
+    data = tomllib.loads((SCENES / "tripod_case_a_flat.toml").read_text())
     data["geometry"]["h"] = h
     data["outputs"] = {"png": False, "xdmf": False}
     data["steps"] = data["steps"][:1] + [{"label": "top", "servo_deg": [38.0, 30.0, 20.0], "increments": 3}]

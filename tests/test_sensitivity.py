@@ -80,7 +80,7 @@ SIGNIFICANT = {"center_height": 1e-7, "center_rotation": 1e-4, "center_tilt_x": 
 def case_a():
     # The arms' l axes are 30° off the arms and the servo angles differ: no symmetry, so the centre twists and
     # tilts and every probe depends on every parameter to first order.
-    design = SceneDesign(scene("tripod_case_a", 0.008), probes=["center_tilt_x", "center_tilt_y"])
+    design = SceneDesign(scene("tripod_case_a_flat", 0.008), probes=["center_tilt_x", "center_tilt_y"])
     design.set_servo_deg([38.0, 30.0, 20.0])
     base = design.solve()
     return design, base
@@ -88,7 +88,7 @@ def case_a():
 
 @pytest.fixture(scope="module")
 def case_b():
-    design = SceneDesign(scene("tripod_case_b", 0.008), probes=["center_tilt_x", "center_tilt_y"])
+    design = SceneDesign(scene("tripod_case_b_flat", 0.008), probes=["center_tilt_x", "center_tilt_y"])
     design.set_servo_deg([30.0, 38.0, 25.0])
     base = design.solve()
     return design, base
@@ -168,7 +168,7 @@ def test_a_plain_run_builds_no_adjoint(tmp_path):
     code = (
         "import sys, tomllib\n"
         "from fenicsfoam.scene import parse_scene, run_scene\n"
-        f"data = tomllib.loads(open({str(SCENES / 'tripod_case_b.toml')!r}).read())\n"
+        f"data = tomllib.loads(open({str(SCENES / 'tripod_case_b_flat.toml')!r}).read())\n"
         "data['geometry']['h'] = 0.01\n"
         "data['outputs'] = {'png': False, 'xdmf': False}\n"
         "result = run_scene(parse_scene(data))\n"
@@ -177,7 +177,7 @@ def test_a_plain_run_builds_no_adjoint(tmp_path):
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=tmp_path,
                          env={**__import__("os").environ, "PYTHONPATH": str(SCENES.parents[1])})
     assert out.stdout.strip().splitlines()[-1] == "[]", out.stdout
-    design = SceneDesign(scene("tripod_case_b", 0.01))
+    design = SceneDesign(scene("tripod_case_b_flat", 0.01))
     design.solve()
     assert design._adjoint is None
     assert all(getattr(p, "_gradient_form", None) is None for p in design.probes.values())

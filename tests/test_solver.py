@@ -299,7 +299,7 @@ def test_cantilever_small_load_models_agree_with_beam_theory():
     w_eb = q * L**4 / (8 * TI.E_l * I)
     w_timoshenko = w_eb + q * L**2 / (2 * 5 / 6 * TI.G_l * h * h)
     w = {}
-    for model in MODELS:
+    for model in ("linear", "svk", "corotational"):  # the new models: tests/test_models.py
         problem = ElasticityProblem(msh, field, orientation=a, model=model, degree=2, gravity=(0, 0, -g),
                                     motions=[RigidMotion("clamp", face(msh, 0, 0.0))], prefix=f"beam_{model}_")
         problem.run([LoadStep("gravity", gravity=1.0)])

@@ -1,7 +1,7 @@
 """Tripod case A as built: l axes 30° from the arms (a chiral, D3-symmetric layout) twist the centre; the mirror
 layout twists by the opposite angle; the probes do not depend on the partition.
 
-The shipped scene `demos/scenes/tripod_case_a.toml` is run with the shipped foam table at a coarser mesh
+The shipped scene `demos/scenes/tripod_case_a_flat.toml` is run with the shipped foam table at a coarser mesh
 (2202 tets instead of 2694).
 """
 
@@ -15,7 +15,7 @@ from mpi4py import MPI
 
 from fenicsfoam.scene import run_scene
 
-SCENE = Path(__file__).resolve().parents[1] / "demos" / "scenes" / "tripod_case_a.toml"
+SCENE = Path(__file__).resolve().parents[1] / "demos" / "scenes" / "tripod_case_a_flat.toml"
 COARSE_TRIPOD_H = 0.006  # 2202 tets, D3-invariant
 #: the mirror y → −y: an element of the plate's (and the mesh's) symmetry group; it maps arm 0 onto itself and
 #: swaps arms 1 and 2 (arms at 0°, 120°, 240°)

@@ -32,7 +32,7 @@ from fenicsfoam import orientation as orient
 from fenicsfoam.constitutive import MaterialField
 from fenicsfoam.material import MATERIAL_KINDS, Isotropic, tabulated_regions
 from fenicsfoam.meshcheck import check_degree, check_units, mesh_extent
-from fenicsfoam.scene.kinds import GROUP_PROBE_KINDS, LOAD_KINDS, PROBE_KINDS, BuildContext
+from fenicsfoam.scene.kinds import GEOMETRY_KINDS, GROUP_PROBE_KINDS, LOAD_KINDS, PROBE_KINDS, BuildContext
 from fenicsfoam.scene.schema import PETSC_PREFIX, Region, Scene
 from fenicsfoam.scene.table import SceneError, key_error
 from fenicsfoam.solver import ElasticityProblem, LoadStep
@@ -53,6 +53,8 @@ class Model:
     probes: dict[str, Callable]       #: name → probe, called with the displacement
     steps: list[LoadStep]
     materials: dict[str, dict]        #: region name → the resolved material's record (for summaries)
+    #: graded scenes: the per-cell foam data (:class:`fenicsfoam.grading.CellMaterials`), else None
+    cell_materials: Any = None
 
 
 # --------------------------------------------------------------------------------------------------
@@ -164,46 +166,11 @@ def _build_orientation(scene: Scene, mesh, cell_tags):
 # --------------------------------------------------------------------------------------------------
 # Mesh
 # --------------------------------------------------------------------------------------------------
-def _mesh_file(comm, params: dict[str, Any]):
-    from meshes.msh import read_msh
-    return read_msh(comm, params["path"])
-
-
-def _mesh_beam(comm, params: dict[str, Any]):
-    from meshes.beam import make_beam
-    return make_beam(comm, **params)
-
-
-def _mesh_finger(comm, params: dict[str, Any]):
-    from meshes.finger import FingerGeometry, make_finger
-    h, order = params.pop("h"), params.pop("order")
-    try:
-        geometry = FingerGeometry(**params)
-    except ValueError as exc:
-        raise SceneError(f"geometry: {exc}") from exc
-    return make_finger(comm, h, geometry, order)
-
-
-def _mesh_tripod(comm, params: dict[str, Any]):
-    from meshes.tripod import TripodGeometry, make_tripod
-    h, order = params.pop("h"), params.pop("order")
-    try:
-        geometry = TripodGeometry(**params)
-    except ValueError as exc:  # named by _build_mesh
-        raise InputError(str(exc)) from exc
-    return make_tripod(comm, h, geometry, order)
-
-
-#: Geometry builders: ``[geometry] builder`` → function(comm, parameters) of the tagged mesh.
-MESHERS: dict[str, Callable] = {"file": _mesh_file, "beam": _mesh_beam, "tripod": _mesh_tripod,
-                                "finger": _mesh_finger}
-
-
 def _build_mesh(scene: Scene, comm):
     """The builder's tagged mesh; a parameter the builder refuses is a :class:`SceneError` naming the key."""
     params = dict(scene.geometry)
     try:
-        return MESHERS[scene.builder](comm, dict(params))
+        return GEOMETRY_KINDS[scene.builder].mesh(comm, dict(params))
     except InputError as exc:
         if isinstance(exc, SceneError):
             raise
@@ -216,10 +183,14 @@ def _build_mesh(scene: Scene, comm):
 def load_steps(scene: Scene) -> list[LoadStep]:
     """The scene's schedule as solver load steps (angles in radians)."""
     steps = []
-    for s in scene.steps:
-        angles = {} if s.servo_deg is None else {f"servo{i}": math.radians(a) for i, a in enumerate(s.servo_deg)}
+    servos = scene.servos
+    for index, s in enumerate(scene.steps):
+        # a servo's motion: its set-up (translation, horn at setup_deg) from the first step on, turned from there
+        turned = {**(dict.fromkeys(servos, 0.0) if index == 0 else {}), **s.servos}
+        angles = {name: math.radians(servos[name]["setup_deg"] + a) for name, a in turned.items()}
+        translations = {name: servos[name]["setup_translation"] for name in turned} if index == 0 else {}
         angles.update({name: math.radians(m["angle_deg"]) for name, m in s.motions.items() if "angle_deg" in m})
-        translations = {name: m["translation"] for name, m in s.motions.items() if "translation" in m}
+        translations.update({name: m["translation"] for name, m in s.motions.items() if "translation" in m})
         steps.append(LoadStep(s.label, gravity=s.gravity, increments=s.increments, angles=angles,
                               translations=translations, factors=dict(s.loads)))
     return steps
@@ -239,8 +210,13 @@ def check_materials(scene: Scene) -> dict[str, Any]:
     return resolved
 
 
-def build_model(scene: Scene, comm) -> Model:
-    """Build the mesh, the problem and the probes of a validated scene (collective)."""
+def build_model(scene: Scene, comm, before_problem: Callable[[Any], Mapping[str, Any]] | None = None) -> Model:
+    """Build the mesh, the problem and the probes of a validated scene (collective).
+
+    ``before_problem(mesh)``, if given, is called once the mesh is built and before anything is assembled (e.g. to
+    size the run and refuse it, :mod:`fenicsfoam.sizing`); it returns PETSc options that the scene's own
+    ``[fem.petsc]`` options override (e.g. the solver chosen by size).
+    """
     resolved = check_materials(scene)  # before meshing: fail fast
     tagged = _build_mesh(scene, comm)
     mesh, cell_tags = tagged.mesh, tagged.cell_tags
@@ -249,6 +225,7 @@ def build_model(scene: Scene, comm) -> Model:
     check_degree(mesh, scene.degree, extent)
     materials = {tag: resolved[region.name] for region in scene.regions for tag in region.tags}
     records = {region.name: _material_record(resolved[region.name]) for region in scene.regions}
+    cells = None
     if scene.graded:  # per-cell density and γ through the table (fenicsfoam.grading)
         from fenicsfoam.grading import CellMaterials
         try:
@@ -268,9 +245,10 @@ def build_model(scene: Scene, comm) -> Model:
     except InputError as exc:
         raise SceneError(f"loads: {exc}") from exc
     gravity = (0.0, 0.0, 0.0) if scene.gravity is None else scene.gravity
+    chosen = {} if before_problem is None else dict(before_problem(mesh))
     problem = ElasticityProblem(mesh, field, orientation=a, model=scene.model, degree=scene.degree,
                                 gravity=gravity, motions=motions, loads=loads, prefix=PETSC_PREFIX,
-                                options=dict(scene.petsc))
+                                options={**chosen, **dict(scene.petsc)})
     context = BuildContext(scene, tagged, problem.V, problem)
     probes = {}
     for name in scene.probes:
@@ -284,4 +262,4 @@ def build_model(scene: Scene, comm) -> Model:
             if isinstance(exc, SceneError):
                 raise
             raise SceneError(f"probes: {name!r}: {exc}") from exc
-    return Model(tagged, problem, a, probes, load_steps(scene), records)
+    return Model(tagged, problem, a, probes, load_steps(scene), records, cells)

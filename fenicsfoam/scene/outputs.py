@@ -30,11 +30,16 @@ import json
 import logging
 import os
 import shutil
+import sys
 import tempfile
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from fenicsfoam.io import PVD_FILE, write_pvd, write_vtu
 from fenicsfoam.scene.kinds import probe_size, probe_unit
 from fenicsfoam.scene.schema import LABEL_PATTERN, Scene
 from foambase.errors import InputError
@@ -42,14 +47,20 @@ from foambase.files import TEMPORARY, check_output_dir, write_json_atomic, write
 from foambase.mpi import on_rank0
 from foambase.signals import discard_temporary, register_temporary
 
-__all__ = ["FIXED_OUTPUTS", "STATUSES", "RunFolder", "SceneResult", "StepResult", "XdmfSeries", "output_path",
-           "picture_orientation", "picture_step", "write_summary"]
+__all__ = ["FIXED_OUTPUTS", "LOG_FILE", "MARGIN_DIRECTIONS", "Progress", "MARGIN_MAX_CELLS", "STATUSES", "FieldSeries", "RunFolder", "SceneResult", "StepResult", "XdmfSeries", "output_path",
+           "picture_orientation", "picture_step", "probes_csv", "series_file", "write_summary"]
 
 logger = logging.getLogger(__name__)
 
+#: The run's log: the size estimate and the progress of every step (appended line by line while the run goes).
+LOG_FILE = "run.log"
 #: The files every run may write besides its step pictures (``<label>.png``).
-FIXED_OUTPUTS = ("summary.json", "probes.csv", "solution.xdmf", "solution.h5", "solution.npz",
+FIXED_OUTPUTS = ("summary.json", "probes.csv", LOG_FILE, PVD_FILE, "solution.xdmf", "solution.h5", "solution.npz",
                  "orientation.png")
+#: The ellipticity margin in the ``.vtu`` files: sampled normals and refinements (see :class:`FieldSeries`).
+MARGIN_DIRECTIONS, MARGIN_REFINEMENTS = 64, 6
+#: Above this many cells the ``.vtu`` files carry no ellipticity margin (its cost grows past the solve's).
+MARGIN_MAX_CELLS = 200_000
 #: ``summary.json``'s ``status``: how the run that wrote the folder ended (see the module docstring).
 STATUSES = ("incomplete", "complete", "failed", "interrupted")
 _XDMF_TEMPORARY = ".solution."
@@ -66,6 +77,7 @@ class StepResult:
     cutbacks: int
     min_det_F: float
     wall_s: float
+    cpu_s: float = 0.0      #: CPU time of rank 0's process during the step (wall_s also counts waiting)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (the ``steps`` entries of ``summary.json``)."""
@@ -91,6 +103,8 @@ class SceneResult:
     status: str = "incomplete"
     #: the files written into ``out_dir`` (names)
     files: list[str] = field(default_factory=list)
+    #: the size and the memory and time estimate made before assembly (:class:`fenicsfoam.sizing.SizeEstimate`)
+    estimate: dict[str, Any] | None = None
     #: the displacement (a ``dolfinx.fem.Function``) at the end of the last step done; its ``function_space.mesh``
     #: is the mesh (not pickled with the result)
     displacement: Any = field(default=None, repr=False, compare=False)
@@ -111,7 +125,7 @@ class SceneResult:
                 "wall_s": self.wall_s, "n_cells": self.n_cells, "n_dofs": self.n_dofs, "n_ranks": self.n_ranks,
                 "probe_units": {p: probe_unit(p) for p in self.scene.probes}, "materials": self.materials,
                 "model": self.scene.model, "degree": self.scene.degree, "error": self.error,
-                "failure": self.failure, "files": list(self.files)}
+                "failure": self.failure, "files": list(self.files), "estimate": self.estimate}
 
     def table(self) -> str:
         """Probes per step, Newton iterations and wall time.
@@ -140,19 +154,28 @@ class SceneResult:
         return "\n".join(lines)
 
 
-def _probes_csv(result: SceneResult) -> str:
-    """One row per step; a vector probe in three columns ``KIND:GROUP_x_UNIT``, ``_y_``, ``_z_``."""
+def probes_csv(result: SceneResult, std: list[dict[str, Any]] | None = None) -> str:
+    """``probes.csv``: one row per step; a vector probe in three columns ``KIND:GROUP_x_UNIT``, ``_y_``, ``_z_``.
+
+    With ``std`` (per step, σ of every probe: ``--uncertainty``), each value column is followed by its standard
+    deviation, ``..._std_UNIT``.
+    """
     buffer = io.StringIO()
     writer = csv.writer(buffer, lineterminator="\n")
     names = []
     for p in result.scene.probes:
         unit = probe_unit(p)
-        names += [f"{p}_{unit}"] if probe_size(p) == 1 else [f"{p}_{c}_{unit}" for c in "xyz"]
+        stems = [p] if probe_size(p) == 1 else [f"{p}_{c}" for c in "xyz"]
+        for stem in stems:
+            names += [f"{stem}_{unit}"] + ([f"{stem}_std_{unit}"] if std is not None else [])
     writer.writerow(["step", *names, "newton_iterations", "wall_s"])
-    for s in result.steps:
+    for k, s in enumerate(result.steps):
         values = []
         for p in result.scene.probes:
-            values += [repr(s.probes[p])] if probe_size(p) == 1 else [repr(v) for v in s.probes[p]]
+            value = [s.probes[p]] if probe_size(p) == 1 else list(s.probes[p])
+            sigma = None if std is None else ([std[k][p]] if probe_size(p) == 1 else list(std[k][p]))
+            for i, v in enumerate(value):
+                values += [repr(v)] + ([] if sigma is None else [repr(float(sigma[i]))])
         writer.writerow([s.label, *values, s.newton_iterations, repr(s.wall_s)])
     return buffer.getvalue()
 
@@ -169,7 +192,7 @@ def write_summary(result: SceneResult, out_dir: Path) -> None:
     for name in ("probes.csv", "summary.json"):
         if name not in result.files:
             result.files.append(name)
-    write_text_atomic(out_dir / "probes.csv", _probes_csv(result))
+    write_text_atomic(out_dir / "probes.csv", probes_csv(result))
     write_json_atomic(out_dir / "summary.json", result.summary())
 
 
@@ -188,6 +211,9 @@ def _previous_files(path: Path, summary: dict[str, Any]) -> set[str]:
     steps = summary.get("scene", {}).get("steps", []) if isinstance(summary.get("scene"), dict) else []
     labels = [s.get("label") for s in [*summary.get("steps", []), *steps] if isinstance(s, dict)]
     names |= {f"{label}.png" for label in labels if isinstance(label, str) and LABEL_PATTERN.fullmatch(label)}
+    scheduled = [s.get("label") if isinstance(s, dict) else None for s in steps]
+    names |= {series_file(i, label) for i, label in enumerate(scheduled)
+              if isinstance(label, str) and LABEL_PATTERN.fullmatch(label)}
     names |= {p.name for p in path.iterdir() if p.name.startswith(_XDMF_TEMPORARY) or TEMPORARY.match(p.name)}
     return {n for n in names if n == os.path.basename(n) and n not in ("", ".", "..")}
 
@@ -296,7 +322,11 @@ class XdmfSeries:
         if collective:
             with contextlib.suppress(Exception):
                 self._file.close()
-        shutil.rmtree(self._tmp, ignore_errors=True)
+        for _ in range(10):  # another rank may still be writing a file into it (until it waits in MPI): retry
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            if not self._tmp.exists():
+                break
+            time.sleep(0.05)
         discard_temporary(self._tmp)
 
 
@@ -310,3 +340,161 @@ def picture_orientation(orientation, out_dir: Path, scene: Scene) -> None:
     """``orientation.png``: the l axis at the cell midpoints (collective; rank 0 writes)."""
     from fenicsfoam.plotting import plot_orientation
     plot_orientation(orientation, out_dir / "orientation.png", title=f"{scene.name}: l axis")
+
+
+def series_file(index: int, label: str) -> str:
+    """The name of step ``index``'s ``.vtu`` file (``solution_NNN_<label>.vtu``)."""
+    return f"solution_{index:03d}_{label}.vtu"
+
+
+class FieldSeries:
+    """``solution.pvd`` and one ``solution_NNN_<label>.vtu`` per step: the displacement and the cell fields.
+
+    Point data: ``displacement`` (m). Cell data (one value per cell, the mean over the cell's quadrature points of
+    the stress integral, or the cell's constant): ``region`` (cell tag), ``density`` and ``gamma`` (foam regions;
+    NaN elsewhere), ``l_axis`` (anisotropic scenes), ``cauchy_stress`` (Pa, 9 components row by row: ``σ = P Fᵀ /
+    det F``; the linear model's stress as it is), ``von_mises`` (Pa, of the cell's mean ``σ``),
+    ``equivalent_strain`` (``sqrt(2/3 dev e : dev e)`` of the model's strain ``e``: Green–Lagrange for SVK, the
+    corotated strain ``sym(Rᵀ F) - I`` for corotational, ``sym ∇u`` for linear), ``det_F`` and
+    ``ellipticity_margin`` (Pa, :func:`fenicsfoam.stability.ellipticity_margin` with :data:`MARGIN_DIRECTIONS`
+    sampled normals; omitted above :data:`MARGIN_MAX_CELLS` cells, where it would cost more than the solve).
+    Field data: ``step_index``, ``step_label`` (its UTF-8 bytes as UInt8), ``gravity_factor``, and per external load
+    ``load_factor:<name>``, per rigid motion ``angle_deg:<name>`` and ``translation_m:<name>``.
+
+    Every file is written atomically by rank 0; ``solution.pvd`` is rewritten after each step, so it lists exactly
+    the steps whose files exist. Building the series and :meth:`write` are collective.
+    """
+
+    def __init__(self, model, scene: Scene, out_dir: Path, layout):
+        import basix
+        import ufl
+        from dolfinx import fem
+
+        from fenicsfoam.constitutive import deformation_gradient
+        from fenicsfoam.orientation import cell_values, owned_cell_tags
+
+        problem = model.problem
+        self._problem, self._layout, self._out = problem, layout, out_dir
+        self._entries: list[tuple[float, str, str]] = []
+        mesh = problem.V.mesh
+        self._n_cells = n = mesh.topology.index_map(mesh.topology.dim).size_local
+        self._cells = np.arange(n, dtype=np.int32)
+        tags = owned_cell_tags(mesh, model.tagged.cell_tags)
+        density, gamma = np.full(n, np.nan), np.full(n, np.nan)
+        graded = getattr(model, "cell_materials", None)
+        for region in scene.regions:
+            if region.material != "foam":
+                continue
+            if graded is not None and region.name in graded.foams:
+                foam = graded.foams[region.name]
+                density[foam.cells], gamma[foam.cells] = foam.density, foam.gamma
+            else:
+                inside = np.isin(tags, region.tags)
+                for key, values in (("density", density), ("gamma", gamma)):
+                    value = region.parameters.get(key)
+                    values[inside] = value if isinstance(value, int | float) else np.nan
+        static = {"region": tags.astype(np.int32), "density": density, "gamma": gamma}
+        if model.orientation is not None:
+            static["l_axis"] = cell_values(model.orientation)
+        self._static = {name: layout.gather_cells(values) for name, values in static.items()}
+
+        u = problem.u
+        F = deformation_gradient(u)
+        J = ufl.det(F)
+        sigma = problem.stress * F.T / J if problem.model.finite_strain else problem.stress
+        e = problem.model.strain(u, problem.rotation)
+        dev = e - ufl.tr(e) / 3 * ufl.Identity(3)
+        cell = basix.cell.string_to_type(mesh.topology.cell_name())
+        points, weights = basix.make_quadrature(cell, problem.quadrature_degree)
+        self._weights = weights / weights.sum()
+        self._expression = fem.Expression(
+            ufl.as_vector([sigma[i, j] for i in range(3) for j in range(3)]
+                          + [J, ufl.sqrt(2.0 / 3.0 * ufl.inner(dev, dev))]), points)
+        self._margin = mesh.comm.allreduce(n) <= MARGIN_MAX_CELLS
+
+    def write(self, index: int, label: str) -> str:
+        """Write step ``index`` (the problem's current state) and the collection; returns the ``.vtu`` name."""
+        from fenicsfoam.orientation import cell_values
+
+        problem, layout = self._problem, self._layout
+        values = self._expression.eval(self._cells).reshape(self._n_cells, len(self._weights), 11)
+        mean = np.einsum("cpk,p->ck", values, self._weights)
+        sigma = mean[:, :9].reshape(-1, 3, 3)
+        deviator = sigma - np.trace(sigma, axis1=1, axis2=2)[:, None, None] * np.eye(3) / 3
+        computed = {"cauchy_stress": mean[:, :9],
+                    "von_mises": np.sqrt(1.5 * np.einsum("cij,cij->c", deviator, deviator)),
+                    "equivalent_strain": mean[:, 10], "det_F": mean[:, 9]}
+        if self._margin:
+            check = problem.ellipticity_margin(directions=MARGIN_DIRECTIONS, refinements=MARGIN_REFINEMENTS)
+            computed["ellipticity_margin"] = cell_values(check.margin)
+        cells = {**self._static, **{name: layout.gather_cells(v) for name, v in computed.items()}}
+        displacement = layout.gather_function(problem.u)
+        name = series_file(index, label)
+        if layout.mesh is not None:
+            loads = problem.loads
+            fields = {"step_index": np.array([index], dtype=np.int64),
+                      "step_label": np.frombuffer(label.encode(), dtype=np.uint8),
+                      "gravity_factor": np.array([loads.gravity])}
+            fields.update({f"load_factor:{k}": np.array([v]) for k, v in loads.factors.items()})
+            fields.update({f"angle_deg:{k}": np.array([np.degrees(v)]) for k, v in loads.angles.items()})
+            fields.update({f"translation_m:{k}": np.asarray(v, dtype=float).reshape(1, 3)
+                           for k, v in loads.translations.items()})
+            write_vtu(output_path(self._out, name), layout.mesh, {"displacement": displacement}, cells, fields)
+            self._entries.append((float(index), label, name))
+            write_pvd(self._out / PVD_FILE, self._entries)
+        return name
+
+
+class Progress:
+    """What a run is doing, on rank 0: lines in ``run.log`` and, when stderr is a terminal, a status line there.
+
+    :meth:`line` records a line for good (the size estimate, a finished step); :meth:`status` records where the
+    solve is (a Newton iteration and its residual): on a terminal it replaces the status line, in the log it is a
+    line of its own. Other ranks do nothing.
+    """
+
+    def __init__(self, comm, log: Path | None, stream=None):
+        stream = sys.stderr if stream is None else stream
+        self._on = comm.rank == 0
+        self._stream = stream if self._on and _is_terminal(stream) else None
+        self._log = open(log, "a", encoding="utf-8") if self._on and log is not None else None  # noqa: SIM115
+        self._start = time.monotonic()
+        self._width = 0
+
+    def _write_log(self, text: str) -> None:
+        if self._log is not None and not self._log.closed:
+            self._log.write(f"[{time.monotonic() - self._start:8.1f} s] {text}\n")
+            self._log.flush()
+
+    def line(self, text: str) -> None:
+        """A line for good."""
+        self._write_log(text)
+        if self._stream is not None:
+            self._stream.write("\r" + " " * self._width + "\r" + text + "\n")
+            self._stream.flush()
+            self._width = 0
+
+    def status(self, text: str) -> None:
+        """Where the solve is now."""
+        self._write_log(text)
+        if self._stream is not None:
+            shown = text[:shutil.get_terminal_size((120, 20)).columns - 1]
+            self._stream.write("\r" + shown + " " * max(0, self._width - len(shown)))
+            self._stream.flush()
+            self._width = len(shown)
+
+    def close(self) -> None:
+        """End the status line; close the log."""
+        if self._stream is not None and self._width:
+            self._stream.write("\n")
+            self._stream.flush()
+            self._width = 0
+        if self._log is not None:
+            self._log.close()
+
+
+def _is_terminal(stream) -> bool:
+    try:
+        return stream.isatty()
+    except (AttributeError, ValueError):
+        return False

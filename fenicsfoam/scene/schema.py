@@ -21,7 +21,14 @@ from typing import Any
 
 from fenicsfoam.material.kinds import GRADED_KEYS, MATERIAL_KINDS, tabulated_regions
 from fenicsfoam.orientation import HANDEDNESS
-from fenicsfoam.scene.kinds import GROUP_PROBE_KINDS, LOAD_KINDS, PROBE_KINDS, MeshInfo
+from fenicsfoam.scene.kinds import (
+    GEOMETRY_KINDS,
+    GROUP_PROBE_KINDS,
+    LOAD_KINDS,
+    PROBE_KINDS,
+    MeshInfo,
+    tripod_flat_servos,
+)
 from fenicsfoam.scene.table import SceneError, _Table, _tags, _type_name, _vector
 
 __all__ = ["LABEL_PATTERN", "RESERVED_NAMES", "Region", "Scene", "Step", "load_scene", "parse_scene"]
@@ -41,7 +48,7 @@ PETSC_PREFIX = "scene_"
 LABEL_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 #: Names of a run's fixed outputs (``summary.json``, ``probes.csv``, ``solution.xdmf``, ``orientation.png``): no
 #: step label may take one (compared without case, as case-insensitive file systems do).
-RESERVED_NAMES = ("summary", "probes", "solution", "orientation")
+RESERVED_NAMES = ("summary", "probes", "solution", "orientation", "run")
 
 
 # --------------------------------------------------------------------------------------------------
@@ -59,15 +66,16 @@ class Region:
 
 @dataclass(frozen=True)
 class Step:
-    """A load step of the schedule: gravity factor, horn angles (degrees), increments, load factors, motions."""
+    """A load step of the schedule: gravity factor, increments, load factors, motions, servo angles."""
 
     label: str
     gravity: float | None
-    servo_deg: tuple[float, float, float] | None
     increments: int
-    loads: Mapping[str, float] = field(default_factory=dict)   #: factor per named load
+    loads: Mapping[str, float] = field(default_factory=dict)   #: factor per named load and per contact
     #: per named motion: ``{"angle_deg": float, "translation": (tx, ty, tz)}`` (either may be absent)
     motions: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    #: per servo actuator: its horn's angle from rest (deg); servos not listed keep theirs
+    servos: Mapping[str, float] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -110,75 +118,19 @@ class Scene:
         return self.loads["clamp"]
 
     @property
-    def servos(self) -> bool:
-        """Whether the Tripod's servo horns carry the arm ends."""
-        return self.loads["servos"]
+    def servos(self) -> Mapping[str, Mapping[str, Any]]:
+        """The servo actuators by name (``[loads.servo.NAME]``, or the Tripod's three of ``loads.servos = true``)."""
+        return self.loads["servo"]
 
 
 # --------------------------------------------------------------------------------------------------
 # Section readers
 # --------------------------------------------------------------------------------------------------
-def _builder_info(builder: str) -> tuple[dict[str, Any], dict[str, tuple[int, ...]], dict[str, tuple[int, ...]]]:
-    """Defaults of the builder's parameters, its named cell regions and named facet groups."""
-    from dataclasses import fields
-
-    if builder == "beam":
-        from meshes.beam import BEAM_VOLUME, CLAMPED_FACE, FIG6_BEAM, TIP_FACE
-        return ({**FIG6_BEAM, "order": 1}, {"beam": (BEAM_VOLUME,)},
-                {"clamped": (CLAMPED_FACE,), "tip": (TIP_FACE,)})
-    if builder == "finger":
-        from meshes.finger import CELL_TAGS, FACET_TAGS, FingerGeometry
-        facets = {name: (tag,) for name, tag in FACET_TAGS.items()}
-        return ({"h": 0.003, "order": 1, **{f.name: f.default for f in fields(FingerGeometry)}},
-                {name: (tag,) for name, tag in CELL_TAGS.items()}, facets)
-
-    from meshes.tripod import PAPER_H, REGIONS, TripodGeometry
-    defaults = {f.name: f.default for f in fields(TripodGeometry)}
-    return {"h": PAPER_H, "order": 1, **defaults}, dict(REGIONS), {}
-
-
-def _read_mesh_file(geometry: _Table, base: Path | None) -> MeshInfo:
-    """``builder = "file"``: a gmsh ``.msh`` file; its physical groups are read (not the mesh) to validate."""
-    from meshes.msh import physical_groups
-
-    path = Path(geometry.string("path", required=True))
-    geometry.done()
-    if not path.is_absolute() and base is not None:
-        path = base / path
-    if not path.is_file():
-        raise SceneError(f"geometry.path: mesh file {str(path)!r} does not exist")
-    try:
-        groups = physical_groups(path)
-    except ValueError as exc:
-        raise SceneError(f"geometry.path: {exc}") from exc
-    return MeshInfo("file", {"path": path}, {n: (t,) for n, t in groups.cell_names.items()},
-                    {n: (t,) for n, t in groups.facet_names.items()}, groups.cells, groups.facets)
-
-
 def _read_geometry(scene: _Table, base: Path | None) -> MeshInfo:
+    """``[geometry]``: the builder (:data:`~fenicsfoam.scene.kinds.GEOMETRY_KINDS`) reads and checks its keys."""
     geometry = scene.table("geometry", required=True)
-    builder = geometry.string("builder", required=True, choices=("beam", "tripod", "finger", "file"))
-    if builder == "file":
-        return _read_mesh_file(geometry, base)
-    defaults, regions, facets = _builder_info(builder)
-    params = {}
-    for key, default in defaults.items():
-        if isinstance(default, bool):
-            params[key] = geometry.boolean(key, default)
-        elif key == "order":
-            params[key] = geometry.integer(key, default=default, choices=(1, 2))
-        elif key == "pivot_z":
-            params[key] = geometry.number(key, default=default)
-        elif key in ("fillet_radius", "pad"):
-            params[key] = geometry.number(key, default=default, check=lambda v: v >= 0, valid="a length >= 0 (m)")
-        else:
-            params[key] = geometry.number(key, default=default, check=lambda v: v > 0, valid="a length > 0 (m)")
-    geometry.done()
-    if builder == "finger":
-        absent = {"chamber": not params["chamber"], "pad": params["pad"] == 0}
-        facets = {name: tags for name, tags in facets.items() if not absent.get(name)}
-    return MeshInfo(builder, params, regions, facets, frozenset().union(*regions.values()),
-                    frozenset().union(*facets.values()))
+    builder = geometry.string("builder", required=True, choices=tuple(GEOMETRY_KINDS))
+    return GEOMETRY_KINDS[builder].info(builder, geometry, base)
 
 
 def _read_fem(scene: _Table) -> tuple[str, int, dict[str, Any]]:
@@ -392,21 +344,42 @@ def _read_blends(scene: _Table, regions: tuple[Region, ...]) -> tuple[dict[str, 
 def _read_loads(scene: _Table, mesh: MeshInfo) -> dict[str, Any]:
     """``[loads]``: one value per load kind (:data:`~fenicsfoam.scene.kinds.LOAD_KINDS`); named loads distinct."""
     table = scene.table("loads") or _Table({}, "loads")
-    loads = {key: kind.read(table, key, mesh) for key, kind in LOAD_KINDS.items()}
+    loads = {key: kind.read(table, key, mesh) if kind.section is None else kind.read(scene, kind.section, mesh)
+             for key, kind in LOAD_KINDS.items()}
     table.done()
+    if loads["servos"]:
+        loads["servo"] = tripod_flat_servos(mesh.params)
     seen: dict[str, str] = {}
-    for key in [*(k for k, kind in LOAD_KINDS.items() if kind.named), "motion"]:
+    for key in [*(k for k, kind in LOAD_KINDS.items() if kind.named), "motion", "servo"]:
+        path = LOAD_KINDS[key].section or f"loads.{key}"
         for name in loads[key]:
             if name in seen:
-                raise SceneError(f"loads.{key}.{name}: the name {name!r} is already used by loads.{seen[name]}.{name} "
-                                 "(the steps refer to loads and motions by name)")
-            seen[name] = key
+                raise SceneError(f"{path}.{name}: the name {name!r} is already used by {seen[name]}.{name} "
+                                 "(the steps refer to loads, contacts and motions by name)")
+            seen[name] = path
     return loads
 
 
 def _named_loads(loads: Mapping[str, Any]) -> dict[str, str]:
     """Name → kind of every load the steps scale (``loads = {NAME = factor}``)."""
-    return {name: key for key, kind in LOAD_KINDS.items() if kind.named for name in loads[key]}
+    return {name: key for key, kind in LOAD_KINDS.items() if kind.named and kind.section is None
+            for name in loads[key]}
+
+
+def _read_step_contacts(table: _Table, loads: Mapping[str, Any]) -> dict[str, float]:
+    """``contacts = {NAME = factor}``: the obstacles' positions, ``factor × motion`` from where they were declared."""
+    factors = table.table("contacts")
+    if factors is None:
+        return {}
+    declared = loads.get("contact") or {}
+    result = {}
+    for name in factors.data:
+        if name not in declared:
+            raise SceneError(f"{factors.key(name)}: no contact named {name!r}; declared contacts: "
+                             f"{', '.join(sorted(declared)) or 'none'} ([contacts.NAME])")
+        result[name] = factors.number(name)
+    factors.done()
+    return result
 
 
 def _read_step_loads(table: _Table, loads: Mapping[str, Any]) -> dict[str, float]:
@@ -463,24 +436,54 @@ def _read_label(table: _Table) -> str:
     return label
 
 
+def _read_step_servos(table: _Table, loads: Mapping[str, Any]) -> dict[str, float]:
+    """A step's horn angles from rest (deg): ``servos = {NAME = deg}`` (or one number), or ``servo_deg``.
+
+    ``servo_deg`` is the shorthand of ``loads.servos = true``; each servo's ``range_deg`` bounds ``setup_deg + θ``.
+    """
+    servos = loads["servo"]
+    angles: dict[str, float] = {}
+    for key in ("servos", "servo_deg"):
+        value = table.raw(key)
+        if value is None:
+            continue
+        if not servos:
+            raise SceneError(f"{table.key(key)}: the scene has no servos; set loads.servos = true (Tripod) or "
+                             f"declare [loads.servo.NAME], or remove {key}")
+        if angles:
+            raise SceneError(f"{table.key(key)}: give servos or servo_deg, not both")
+        if isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value):
+            angles = dict.fromkeys(servos, float(value))
+        elif key == "servo_deg":
+            if list(servos) != ["servo0", "servo1", "servo2"]:
+                raise SceneError(f"{table.key(key)}: an array of three angles is the shorthand of loads.servos = "
+                                 f"true; name the servos instead: servos = {{NAME = deg}} ({', '.join(servos)})")
+            angles = dict(zip(servos, _vector(value, 3, table.key(key))))
+        else:
+            named = table.table(key)
+            for name in list(named.data):
+                if name not in servos:
+                    raise SceneError(f"{named.key(name)}: no servo named {name!r}; declared servos: "
+                                     f"{', '.join(servos)}")
+                angles[name] = named.number(name, required=True)
+            named.done()
+        for name, angle in angles.items():
+            limits = servos[name]["range_deg"]
+            if limits is not None and not limits[0] <= servos[name]["setup_deg"] + angle <= limits[1]:
+                raise SceneError(f"{table.key(key)}: servo {name!r} at {angle:g}° from rest reaches "
+                                 f"{servos[name]['setup_deg'] + angle:g}°, outside its range_deg {list(limits)}")
+    return angles
+
+
 def _read_step(table: _Table, loads: Mapping[str, Any]) -> Step:
-    servos = loads["servos"]
     label = _read_label(table)
     gravity = table.number("gravity", check=lambda v: v >= 0, valid="a load factor >= 0 (1: full gravity)")
-    servo = table.raw("servo_deg")
-    if servo is not None:
-        if not servos:
-            raise SceneError(f"{table.key('servo_deg')}: the scene has no servos; set loads.servos = true "
-                             "(Tripod) or remove servo_deg")
-        if isinstance(servo, int | float) and not isinstance(servo, bool) and math.isfinite(servo):
-            servo = (float(servo),) * 3
-        else:
-            servo = _vector(servo, 3, table.key("servo_deg"))
+    servos = _read_step_servos(table, loads)
     increments = table.integer("increments", default=1, minimum=1)
-    factors = _read_step_loads(table, loads)
+    factors = {**_read_step_loads(table, loads), **_read_step_contacts(table, loads)}
     motions = _read_step_motions(table, loads)
     table.done()
-    return Step(label, gravity, servo, increments, factors, motions)
+    return Step(label, gravity, increments, factors, motions, servos)
 
 
 def _read_steps(scene: _Table, loads: Mapping[str, Any]) -> tuple[Step, ...]:

@@ -210,8 +210,8 @@ MUTATIONS: tuple[Mutation, ...] = (
         targets=("tests/test_fem_rve.py",)),
     Mutation(
         "scene-servo-degrees", "fenicsfoam/scene/build.py",
-        '{f"servo{i}": math.radians(a) for i, a in enumerate(s.servo_deg)}',
-        '{f"servo{i}": math.radians(a) / 2 for i, a in enumerate(s.servo_deg)}',
+        'angles = {name: math.radians(servos[name]["setup_deg"] + a) for name, a in turned.items()}',
+        'angles = {name: math.radians(servos[name]["setup_deg"] + a) / 2 for name, a in turned.items()}',
         "scene servo angles halved in the conversion to radians",
         targets=("tests/test_scene.py",)),
     Mutation(
