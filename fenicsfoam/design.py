@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 from mpi4py import MPI
 
+from foambase.cells import num_owned_cells
 from foambase.errors import InputError
 
 __all__ = ["MISFIT_SCALES", "DesignHistory", "DesignResult", "OrientationDesign", "SERVOS", "SceneDesign",
@@ -74,7 +75,7 @@ class OrientationDesign:
         self.field = field
         self.offset_deg = float(self.spec.get("offset_deg", 0.0))
         self.pitch_deg = float(self.spec["pitch_deg"]) if self.spec["kind"] == "spiral" else None
-        n = mesh.topology.index_map(mesh.topology.dim).size_local
+        n = num_owned_cells(mesh)
         self.angle_deg = np.zeros(n)
         self._midpoints = compute_midpoints(mesh, mesh.topology.dim, np.arange(n, dtype=np.int32))
         self._base = _rotate_z(cell_values(field), np.full(n, -math.radians(self.offset_deg)))
@@ -163,7 +164,7 @@ class SceneDesign:
         self.steps = list(self.model.steps)
         self.solves = 0
         self._adjoint = None
-        self.n_cells = mesh.topology.index_map(mesh.topology.dim).size_local
+        self.n_cells = num_owned_cells(mesh)
 
     # ----------------------------------------------------------------------------------------------
     # Parameters

@@ -30,7 +30,6 @@ files are removed) and either is reported as ``PROG COMMAND: interrupted by SIGN
 from __future__ import annotations
 
 import argparse
-import importlib
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -93,8 +92,9 @@ def nonempty_path(text: str) -> Path:
 
 def resolve(spec: str) -> Command:
     """The :class:`Command` named by ``"module:ATTRIBUTE"``."""
-    module, _, attribute = spec.partition(":")
-    return getattr(importlib.import_module(module), attribute)
+    from foambase.imports import import_object
+
+    return import_object(spec)
 
 
 def _verbosity(parser: argparse.ArgumentParser, dest: str = "verbose") -> None:
