@@ -4,7 +4,8 @@ The Fig. 6 beam (250 × 15 × 15 mm, isotropic foam, corotational, P2, clamped, 
 sizes from about 20k to 150k dofs; every case runs ``fenicsfoam run`` in a subprocess of its own (serial, no field
 files, no pictures), with the solver forced by ``--solver``. Recorded per case: cells, dofs, Newton iterations, the
 solve's wall and CPU time (summary.json, the steps' ``wall_s`` and ``cpu_s``), the whole process's wall and CPU time
-and its peak resident memory (``getrusage`` of the child). On a shared machine the CPU times are the measure. The fit of :mod:`fenicsfoam.sizing` and the crossover come from this CSV.
+and its peak resident memory (``getrusage`` of the child). On a shared machine the CPU times are the measure.
+The fit of :mod:`fenicsfoam.sizing` and the choice of the default solver come from this CSV.
 
     python bench/bench_large_runs.py --out out/bench_large          # writes out/bench_large/large_runs.csv
     python bench/bench_large_runs.py --fit out/bench_large/large_runs.csv [more.csv ...]   # the model's constants
@@ -90,7 +91,7 @@ def fit(paths: list[Path]) -> None:
     for s, (slope, intercept) in q.items():
         print(f"{s}: t per Newton iteration = {np.exp(intercept):.3g} n^{slope:.3f} s (CPU)")
     for s in by:
-        for r, x, m, t in zip(by[s], n[s], mem[s], per_newton[s]):
+        for x, m, t in zip(n[s], mem[s], per_newton[s]):
             model_m = m0 + (a * x**p if s == "direct" else a_it * x)
             slope, intercept = q.get(s, (np.nan, np.nan))
             print(f"{s:9s} {int(x):7d} dofs: memory {m / 2**20:7.0f} MB (model {model_m / 2**20:7.0f}), "

@@ -68,7 +68,8 @@ CI_SETTINGS = tables.SweepSettings(n_cells=6, resolution=24, tol=1e-3)
 CI_H = 0.006
 #: Why the Tripod runs at degree 1 although the mesh check warns against it (one line, printed before the run).
 DEGREE_NOTE = ("Tripod at degree 1 as the paper's Table I model (2.7k linear tets, about one through the 5 mm plate), "
-               "so the P1 warning below is expected; on the shipped mesh degree 2 gives a rise and twist at top of 19.2 mm, -15.9 deg "
+               "so the P1 warning below is expected; on the shipped mesh degree 2 gives a rise and twist at top of "
+               "19.2 mm, -15.9 deg "
                "(P1: 25.1 mm, -19.2 deg; real robot 20.5 mm, 22.1 deg)")
 
 

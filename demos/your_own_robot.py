@@ -270,7 +270,8 @@ def table(pneumatic, cable, blocked) -> str:
 # %% [markdown]
 # ## 5. Reading the results back
 #
-# Every run writes `solution.npz` next to `solution.xdmf`: `read_solution(out_dir)` gives the mesh (`points`,
+# Every run writes `solution.npz` next to the ParaView series `solution.pvd` (one `.vtu` per step, with stress and
+# strain per cell): `read_solution(out_dir)` gives the mesh (`points`,
 # `cells` in VTK order) and each step's displacement at every node, on any number of ranks. With pyvista:
 #
 # ```python

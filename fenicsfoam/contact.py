@@ -90,6 +90,14 @@ class Obstacle:
         if self.shape == "box" and not np.all(np.asarray(self.max) > np.asarray(self.min)):
             raise InputError(f"obstacle box: max {list(self.max)} must exceed min {list(self.min)} in every component")
 
+    def moved(self, shift) -> Obstacle:
+        """The obstacle translated by ``shift`` (m), at rest (its ``motion`` zero)."""
+        from dataclasses import replace
+        d = np.asarray(shift, dtype=float)
+        moved = {k: tuple((np.asarray(getattr(self, k), float) + d).tolist()) for k in ("point", "center", "min", "max")
+                 if getattr(self, k) is not None}
+        return replace(self, motion=(0.0, 0.0, 0.0), **moved)
+
     # ----------------------------------------------------------------------------------------------
     def distance(self, x):
         """UFL signed distance ``d(x)`` and outward normal ``n(x)`` of the obstacle at rest, for a UFL point ``x``."""
@@ -99,7 +107,7 @@ class Obstacle:
             return ufl.dot(x - ufl.as_vector(list(map(float, self.point))), normal), normal
         if self.shape == "sphere":
             r = x - ufl.as_vector(list(map(float, self.center)))
-            length = ufl.sqrt(ufl.dot(r, r))
+            length = ufl.sqrt(ufl.dot(r, r) + (1e-12 * float(self.radius)) ** 2)  # finite at the centre
             return length - float(self.radius), r / length
         lo, hi = np.asarray(self.min, float), np.asarray(self.max, float)
         c, half = ufl.as_vector(((lo + hi) / 2).tolist()), ((hi - lo) / 2).tolist()
@@ -214,6 +222,21 @@ class Contact(Load):
     def force(self) -> np.ndarray:
         """The total force (N) the obstacle exerts on the body at the current state (collective)."""
         return np.array([self._sum(f) for f in self._force_forms])
+
+    def force_gradient(self, component: int) -> np.ndarray:
+        """Derivative of the force's ``component`` with respect to the owned dofs of ``u`` (collective)."""
+        from dolfinx.fem.petsc import assemble_vector
+        from petsc4py import PETSc
+        forms = self.__dict__.setdefault("_force_gradient_forms", {})
+        if component not in forms:
+            V = self._u.function_space
+            functional = self._pressure * self._normal[component] * self.ds
+            forms[component] = fem.form(ufl.derivative(functional, self._u, ufl.TestFunction(V)))
+        b = assemble_vector(forms[component])
+        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        gradient = b.array.copy()
+        b.destroy()
+        return gradient
 
     def contact_area(self) -> float:
         """The reference area (m²) of the group where the contact pressure is positive (collective)."""

@@ -1,4 +1,14 @@
-"""Inverse servo control of the Tripod: the three horn angles of the last step that put the centre at a target pose.
+"""Inverse actuation: the servo angles or load factors of the last step that bring probes to target values.
+
+Any scene: the unknowns are servo angles (deg) and the factors of named forces, tractions, pressures and cables at
+the scene's last step, each within bounds; the targets are scalar probes or components of vector probes
+(``tip_deflection``, ``displacement:GROUP[i]`` in m, ``contact_force:NAME[i]`` in N, and the Tripod's below), at
+most as many as unknowns. The method below is written for the Tripod's servos θ, its default unknowns; with other
+unknowns θ stands for their values (servo angles in deg, load factors dimensionless) and the weights ``W`` are 1/mm,
+1/deg and 1/mN by the target's unit. ``control.json`` names the unknowns and their bounds (``unknowns``,
+``bounds``, ``initial``).
+
+Tripod:
 
 Given targets for up to three of the centre's probes (``center_height`` in m, ``center_rotation``,
 ``center_tilt_x``, ``center_tilt_y`` in degrees), :func:`control_servos` finds the servo angles θ of the scene's
@@ -58,7 +68,7 @@ from foambase import cli
 from foambase.errors import InputError, NotConvergedError
 
 __all__ = ["CONTROL", "TARGET_PROBES", "ControlResult", "InverseController", "UnreachableTargetError",
-           "control_servos", "parse_targets"]
+           "control_servos", "parse_targets", "parse_unknowns", "target_unit"]
 
 logger = logging.getLogger(__name__)
 
@@ -70,7 +80,13 @@ TARGET_PROBES: dict[str, tuple[str, float]] = {
     "center_tilt_y": ("deg", 1.0),
 }
 #: Default tolerance of a target, by unit.
-TOLERANCES: dict[str, float] = {"m": 1e-9, "deg": 1e-7}
+TOLERANCES: dict[str, float] = {"m": 1e-9, "deg": 1e-7, "N": 1e-9}
+#: The scale of a target's misfit weight W by unit (1 mm, 1 degree, 1 mN).
+UNIT_SCALES: dict[str, float] = {"m": 1e-3, "deg": 1.0, "N": 1e-3}
+#: Scalar probes of any scene that a target may name (besides the Tripod's and ``KIND:GROUP[i]`` components).
+SCALAR_TARGETS: dict[str, str] = {"tip_deflection": "m"}
+#: Units of the components ``KIND:GROUP[i]`` a target may name.
+COMPONENT_UNITS: dict[str, str] = {"displacement": "m", "contact_force": "N"}
 #: Default servo range (deg): the paper's poses are 0° (rest), 19° (middle), 38° (top); a modelling choice with margin.
 SERVO_RANGE: tuple[float, float] = (-20.0, 60.0)
 _MOTION_TOL = 1e-5   # deg: the least-motion iteration is converged when a step moves less
@@ -96,6 +112,10 @@ class ControlResult:
     servo_range: tuple[float, float] = SERVO_RANGE
     initial_deg: list[float] = field(default_factory=list)
     history: list[dict[str, Any]] = field(default_factory=list)
+    #: the unknowns solved for and their values (servo angles in deg, load factors), their bounds and initial values
+    unknowns: dict[str, float] = field(default_factory=dict)
+    bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
+    initial: dict[str, float] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict: ``servo_deg, target, achieved, iterations, scene_solves`` first."""
@@ -148,18 +168,106 @@ def parse_targets(items: Sequence[str]) -> dict[str, float]:
     return targets
 
 
-def _check_targets(targets: Mapping[str, float], n_servos: int) -> dict[str, float]:
+def target_unit(name: str) -> str | None:
+    """The unit of a target probe name (``center_height``, ``tip_deflection``, ``KIND:GROUP[i]``), or None."""
+    if name in TARGET_PROBES:
+        return TARGET_PROBES[name][0]
+    if name in SCALAR_TARGETS:
+        return SCALAR_TARGETS[name]
+    kind, _, rest = name.partition(":")
+    group, bracket, index = rest.partition("[")
+    if kind in COMPONENT_UNITS and group and bracket and index in ("0]", "1]", "2]"):
+        return COMPONENT_UNITS[kind]
+    return None
+
+
+def _check_targets(targets: Mapping[str, float], n_unknowns: int, what: str = "servos") -> dict[str, float]:
+    valid = (f"{', '.join([*TARGET_PROBES, *SCALAR_TARGETS])}, or a component KIND:GROUP[i] with KIND in "
+             f"{', '.join(COMPONENT_UNITS)} (e.g. displacement:tip[2], contact_force:ball[2])")
     if not targets:
-        raise InputError(f"give at least one target ({', '.join(TARGET_PROBES)})")
+        raise InputError(f"give at least one target ({valid})")
     for name, value in targets.items():
-        if name not in TARGET_PROBES:
-            raise InputError(f"unknown target {name!r}; valid: {', '.join(TARGET_PROBES)} "
-                             "(center_height in m, the angles in degrees)")
+        if target_unit(name) is None:
+            raise InputError(f"unknown target {name!r}; valid: {valid} (lengths in m, angles in degrees, forces "
+                             "in N)")
         if not math.isfinite(value):
             raise InputError(f"target {name} = {value!r}: expected a finite number")
-    if len(targets) > n_servos:
-        raise InputError(f"{len(targets)} targets for {n_servos} servos: give at most {n_servos}")
+    if len(targets) > n_unknowns:
+        raise InputError(f"{len(targets)} targets for {n_unknowns} {what}: give at most {n_unknowns}")
     return {k: float(v) for k, v in targets.items()}
+
+
+def _check_target_groups(targets: Mapping[str, float], scene) -> None:
+    """Refuse a target whose probe the scene cannot build (before anything is built)."""
+    for name in targets:
+        if name in TARGET_PROBES and scene.builder != "tripod":
+            raise InputError(f"target {name!r} needs the tripod builder, the scene uses {scene.builder!r}")
+        if name == "tip_deflection" and ("tip" not in scene.facets or scene.gravity is None):
+            raise InputError("target 'tip_deflection' needs a facet group named 'tip' and loads.gravity")
+        kind, _, rest = name.partition(":")
+        group = rest.partition("[")[0]
+        if kind == "displacement" and group not in scene.facets:
+            raise InputError(f"target {name!r}: unknown facet group {group!r}; facet groups: "
+                             f"{', '.join(sorted(scene.facets)) or 'none'}")
+        if kind == "contact_force" and group not in (scene.loads.get("contact") or {}):
+            raise InputError(f"target {name!r}: no contact named {group!r}; declared contacts: "
+                             f"{', '.join(sorted(scene.loads.get('contact') or {})) or 'none'}")
+
+
+def _check_unknowns(unknowns: Mapping[str, Sequence[float] | None], scene,
+                    servo_range: tuple[float, float]) -> dict[str, tuple[float, float]]:
+    """``{name: (lo, hi)}`` of the unknowns, checked.
+
+    Servo angles (deg; default the servo range) and the factors of named forces, tractions, pressures and cables
+    (bounds required; a cable's ≥ 0).
+    """
+    from fenicsfoam.design import ACTUATOR_KINDS
+    loads = {name: kind for kind in ACTUATOR_KINDS for name in (scene.loads.get(kind) or {})}
+    servos = tuple(scene.servos)
+    valid = ", ".join([*servos, *loads]) or "none (the scene has no servos and no named force, traction, pressure " \
+        "or cable)"
+    if not unknowns:
+        raise InputError(f"give at least one unknown; this scene's: {valid}")
+    bounds = {}
+    for name, bound in unknowns.items():
+        if name not in servos and name not in loads:
+            raise InputError(f"unknown {name!r} is not a servo or a named actuating load of the scene; valid: {valid}")
+        if bound is None:
+            if name in loads:
+                raise InputError(f"unknown {name!r}: give the bounds of its factor (e.g. {name}=0:2)")
+            bound = servo_range
+        lo, hi = (float(v) for v in bound)
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+            raise InputError(f"unknown {name!r}: bounds [{lo!r}, {hi!r}] must be finite with lo < hi")
+        if name in servos and not (-180.0 < lo and hi < 180.0):
+            raise InputError(f"unknown {name!r}: servo bounds [{lo:g}, {hi:g}] deg must lie in (-180, 180)")
+        if name in loads and loads[name] == "cable" and lo < 0:
+            raise InputError(f"unknown {name!r}: a cable's factor must stay >= 0 (it cannot push), got lo = {lo:g}")
+        bounds[name] = (lo, hi)
+    return bounds
+
+
+def parse_unknowns(items: Sequence[str]) -> dict[str, tuple[float, float] | None]:
+    """``["chamber=0:2", "servo0"]`` → ``{"chamber": (0.0, 2.0), "servo0": None}``; :class:`InputError` if bad."""
+    unknowns: dict[str, tuple[float, float] | None] = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        name = name.strip()
+        if not name:
+            raise InputError(f"unknown {item!r}: expected NAME or NAME=LO:HI, e.g. chamber=0:2")
+        bound = None
+        if sep:
+            lo, colon, hi = value.partition(":")
+            try:
+                bound = (float(lo), float(hi))
+            except ValueError:
+                raise InputError(f"unknown {item!r}: expected NAME=LO:HI with numbers, e.g. chamber=0:2") from None
+            if not colon:
+                raise InputError(f"unknown {item!r}: expected NAME=LO:HI, e.g. chamber=0:2")
+        if name in unknowns:
+            raise InputError(f"unknown {name!r} is given twice")
+        unknowns[name] = bound
+    return unknowns
 
 
 def _check_range(servo_range: Sequence[float]) -> tuple[float, float]:
@@ -269,40 +377,66 @@ def _damped_bfgs(B: np.ndarray, s: np.ndarray, y: np.ndarray) -> np.ndarray:
 # The controller
 # --------------------------------------------------------------------------------------------------
 class InverseController:
-    """Inverse control of a scene's servos, keeping its :class:`~fenicsfoam.design.SceneDesign` between calls.
+    """Inverse actuation of a scene, keeping its :class:`~fenicsfoam.design.SceneDesign` between calls.
 
-    Successive :meth:`solve` calls start from the previous solution's equilibrium (warm start), e.g. along a
-    trajectory of poses.
+    The unknowns are the Tripod's servo angles (the default, for a Tripod scene with servos) or any of the scene's
+    servo angles (deg) and factors of named forces, tractions, pressures and cables at its last step, each within
+    bounds (``unknowns = {name: (lo, hi)}``; a servo's default bounds are ``servo_range``). Successive :meth:`solve`
+    calls start from the previous solution's equilibrium (warm start), e.g. along a trajectory of poses.
     """
 
     def __init__(self, source, comm=None, servo_range: Sequence[float] = SERVO_RANGE,
-                 tolerances: Mapping[str, float] | None = None, max_iterations: int = 60):
+                 tolerances: Mapping[str, float] | None = None, max_iterations: int = 60,
+                 unknowns: Mapping[str, Sequence[float] | None] | Sequence[str] | None = None):
         from fenicsfoam.design import SceneDesign
         from fenicsfoam.scene import Scene, load_scene
 
         scene = source if isinstance(source, Scene) else load_scene(source)
-        if scene.builder != "tripod" or len(scene.servos) != 3:
-            raise InputError(f"scene {scene.name!r}: inverse control needs the tripod builder with three servos "
-                             "(loads.servos = true, or three [loads.servo.NAME])")
         self.servo_range = _check_range(servo_range)
+        if unknowns is None:
+            _check_default_unknowns(scene)
+            unknowns = dict.fromkeys(scene.servos)
+        elif not isinstance(unknowns, Mapping):
+            unknowns = dict.fromkeys(unknowns)
+        self.bounds = _check_unknowns(unknowns, scene, self.servo_range)
+        self.names = list(self.bounds)
+        self.lo = np.array([self.bounds[n][0] for n in self.names])
+        self.hi = np.array([self.bounds[n][1] for n in self.names])
         self.tolerances = {**TOLERANCES, **(tolerances or {})}
         if not (isinstance(max_iterations, int) and max_iterations >= 1):
             raise InputError(f"max_iterations must be an integer >= 1, got {max_iterations!r}")
         self.max_iterations = max_iterations
-        initial = dict.fromkeys(scene.servos, 0.0)
-        for step in scene.steps:
-            initial.update(step.servos)
-        initial = list(initial.values())
-        self.initial_deg = np.array(initial, dtype=float)
-        self._check_initial(self.initial_deg)  # before anything is built
-        self.design = SceneDesign(scene, comm, probes=tuple(TARGET_PROBES))
+        self.scene = scene
+        self.initial = np.array([_scene_value(scene, n) for n in self.names], dtype=float)
+        self._check_initial(self.initial)  # before anything is built
+        self.design = SceneDesign(scene, comm, probes=tuple(TARGET_PROBES) if scene.builder == "tripod" else ())
         self._solved = False
 
+    @property
+    def initial_deg(self) -> np.ndarray:
+        """The initial guess (the unknowns' values in their order; for the Tripod's default, the servo angles)."""
+        return self.initial
+
+    @initial_deg.setter
+    def initial_deg(self, values) -> None:
+        self.initial = np.asarray(values, dtype=float)
+
     def _check_initial(self, initial: np.ndarray) -> None:
-        lo, hi = self.servo_range
-        if np.any(initial < lo) or np.any(initial > hi):
-            raise InputError(f"initial servo angles {initial.tolist()} deg (the last step's servo_deg) lie outside "
-                             f"the servo range [{lo:g}, {hi:g}] deg")
+        if np.any(initial < self.lo) or np.any(initial > self.hi):
+            if self.names == list(self.scene.servos):
+                lo, hi = self.servo_range
+                raise InputError(f"initial servo angles {initial.tolist()} deg (the last step's servo_deg) lie "
+                                 f"outside the servo range [{lo:g}, {hi:g}] deg")
+            raise InputError(f"initial values {dict(zip(self.names, initial.tolist()))} (the scene's last step) lie "
+                             f"outside the bounds {self.bounds}")
+
+    def _set(self, x: np.ndarray) -> None:
+        self.design.set(dict(zip(self.names, (float(v) for v in x))))
+
+    def _solve_at(self, x: np.ndarray) -> dict[str, float]:
+        """Move the unknowns to ``x`` from the current equilibrium (one scene solve)."""
+        self._set(x)
+        return self.design.solve_last_step()
 
     def solve(self, targets: Mapping[str, float], initial_deg: Sequence[float] | None = None) -> ControlResult:
         """Servo angles that meet ``targets`` (module docstring); the first call runs the whole schedule.
@@ -321,29 +455,50 @@ class InverseController:
 
         """
         design = self.design
-        targets = _check_targets(targets, len(design.servos))
-        theta0 = np.array(self.initial_deg if initial_deg is None else initial_deg, dtype=float)
-        if theta0.shape != (3,) or not np.all(np.isfinite(theta0)):
-            raise InputError(f"initial servo angles must be 3 finite numbers (deg), got {theta0.tolist()}")
+        targets = _check_targets(targets, len(self.names), "unknowns")
+        _check_target_groups(targets, self.scene)
+        theta0 = np.array(self.initial if initial_deg is None else initial_deg, dtype=float)
+        if theta0.shape != (len(self.names),) or not np.all(np.isfinite(theta0)):
+            raise InputError(f"initial values must be {len(self.names)} finite numbers ({', '.join(self.names)}), "
+                             f"got {theta0.tolist()}")
         self._check_initial(theta0)
+        for name in targets:
+            design.add_probe(name)
         run = _Run(self, targets, theta0)
         if not self._solved:
-            design.set_servo_deg(theta0)
+            self._set(theta0)
             run.values = design.solve()
             self._solved = True
         else:
-            run.values = design.solve_last(theta0)
+            run.values = self._solve_at(theta0)
         run.record(np.inf)
         result = run.iterate()
-        self.initial_deg = np.array(result.servo_deg)
+        self.initial = np.array([result.unknowns[n] for n in self.names])
         return result
 
     def _unreachable(self, closest: ControlResult) -> None:
-        lo, hi = self.servo_range
+        values = {n: round(v, 6) for n, v in closest.unknowns.items()}
         raise UnreachableTargetError(
-            f"the target {closest.target} is outside the reachable set for servo angles in [{lo:g}, {hi:g}] deg; "
-            f"closest reachable pose: {closest.achieved} at servo {np.round(closest.servo_deg, 6).tolist()} deg",
-            closest)
+            f"the target {closest.target} is outside the reachable set for {', '.join(self.names)} within "
+            f"{self.bounds}; closest reachable state: {closest.achieved} at {values}", closest)
+
+
+def _check_default_unknowns(scene) -> None:
+    if scene.builder != "tripod" or len(scene.servos) != 3:
+        raise InputError(f"scene {scene.name!r}: inverse control needs the tripod builder with three servos "
+                         "(loads.servos = true, or three [loads.servo.NAME]) for its default unknowns, or unknowns: "
+                         "named loads' factors, servo angles")
+
+
+def _scene_value(scene, name: str) -> float:
+    """An unknown's value at the scene's last step: a servo angle from rest (deg) or a load factor (0 if none)."""
+    value = 0.0
+    for step in scene.steps:
+        if name in step.servos:
+            value = float(step.servos[name])
+        elif name in step.loads:
+            value = float(step.loads[name])
+    return value
 
 
 class _Run:
@@ -353,10 +508,12 @@ class _Run:
         self.controller, self.design = controller, controller.design
         self.targets, self.theta0 = targets, theta0
         self.names = list(targets)
+        self.unknowns = controller.names
+        self.n = len(self.unknowns)
         self.t = np.array([targets[n] for n in self.names])
-        self.w = np.array([1.0 / TARGET_PROBES[n][1] for n in self.names])
-        self.tol = np.array([controller.tolerances[TARGET_PROBES[n][0]] for n in self.names])
-        self.lo, self.hi = (np.full(3, v) for v in controller.servo_range)
+        self.w = np.array([1.0 / UNIT_SCALES[target_unit(n)] for n in self.names])
+        self.tol = np.array([controller.tolerances[target_unit(n)] for n in self.names])
+        self.lo, self.hi = controller.lo.copy(), controller.hi.copy()
         self.theta = theta0.copy()
         self.values: dict[str, float] = {}
         self.solves0 = self.design.solves
@@ -374,17 +531,21 @@ class _Run:
         return bool(np.all(np.abs(self.misfit) <= self.tol))
 
     def record(self, step: float) -> None:
-        self.history.append({"iteration": self.iterations, "servo_deg": self.theta.tolist(),
-                             "achieved": {n: self.values[n] for n in self.names}, "step_deg": float(step)})
-        logger.info("control iteration %d: servo %s deg, misfit %s", self.iterations,
-                    np.round(self.theta, 6).tolist(), self.misfit.tolist())
+        self.history.append({"iteration": self.iterations,
+                             "unknowns": dict(zip(self.unknowns, self.theta.tolist())),
+                             "achieved": {n: self.values[n] for n in self.names}, "step": float(step)})
+        logger.info("control iteration %d: %s, misfit %s", self.iterations,
+                    dict(zip(self.unknowns, np.round(self.theta, 6).tolist())), self.misfit.tolist())
 
     def result(self, reached: bool) -> ControlResult:
-        return ControlResult(servo_deg=self.theta.tolist(), target=dict(self.targets),
+        servos = [i for i, n in enumerate(self.unknowns) if n in self.controller.scene.servos]
+        return ControlResult(servo_deg=self.theta[servos].tolist(), target=dict(self.targets),
                              achieved={n: self.values[n] for n in self.names}, iterations=self.iterations,
                              scene_solves=self.design.solves - self.solves0, reached=reached,
-                             servo_range=self.controller.servo_range, initial_deg=self.theta0.tolist(),
-                             history=self.history)
+                             servo_range=self.controller.servo_range, initial_deg=self.theta0[servos].tolist(),
+                             history=self.history, unknowns=dict(zip(self.unknowns, self.theta.tolist())),
+                             bounds=dict(self.controller.bounds),
+                             initial=dict(zip(self.unknowns, self.theta0.tolist())))
 
     def _count(self) -> None:
         self.iterations += 1
@@ -392,12 +553,15 @@ class _Run:
             closest = self.result(False)
             misfit = dict(zip(self.names, self.misfit.tolist()))
             raise _NotConverged(f"inverse control did not converge in {self.controller.max_iterations} iterations: "
-                                f"misfit {misfit} at servo {np.round(self.theta, 6).tolist()} deg", closest)
+                                f"misfit {misfit} at {self._where()}", closest)
+
+    def _where(self) -> str:
+        return str(dict(zip(self.unknowns, np.round(self.theta, 6).tolist())))
 
     def _gradients(self) -> np.ndarray:
-        """``W ∂f/∂θ`` (targets × servos) at the current equilibrium."""
-        g = self.design.gradient(self.names, list(self.design.servos))
-        return self.w[:, None] * np.array([[g[n][s] for s in self.design.servos] for n in self.names])
+        """``W ∂f/∂x`` (targets × unknowns) at the current equilibrium."""
+        g = self.design.gradient(self.names, self.unknowns)
+        return self.w[:, None] * np.array([[g[n][s] for s in self.unknowns] for n in self.names])
 
     def _move(self, trial: np.ndarray) -> bool:
         """Solve at ``trial``; on a failed forward solve go back to the current state and return False."""
@@ -405,18 +569,18 @@ class _Run:
 
         state = self.design.problem.snapshot()
         try:
-            self.values_trial = self.design.solve_last(trial)
+            self.values_trial = self.controller._solve_at(trial)
         except ConvergenceError as exc:
             logger.info("control: forward solve at %s failed (%s)", trial.tolist(), exc)
             self.design.problem.restore(state)
-            self.design.set_servo_deg(self.theta)
+            self.controller._set(self.theta)
             return False
         self._state = state
         return True
 
     def _undo(self) -> None:
         self.design.problem.restore(self._state)
-        self.design.set_servo_deg(self.theta)
+        self.controller._set(self.theta)
 
     # -- restoration: Newton (least-norm steps) onto f(θ) = t, Gauss-Newton to the closest pose if out of reach --
     def restore(self) -> np.ndarray:
@@ -432,7 +596,7 @@ class _Run:
                 # A symmetric pose: the targets' gradients are parallel (e.g. height and twist of case B at equal
                 # angles), so no first-order step meets them; leave the symmetry along a fixed direction.
                 self.escapes += 1
-                direction = _escape_direction(Gw)
+                direction = _escape_direction(Gw) if self.n == 3 else _escape_direction_n(Gw)
                 logger.info("control: rank-deficient target gradients at %s; a %g deg step along %s",
                             self.theta.tolist(), _ESCAPE_DEG, np.round(direction, 6).tolist())
                 self._count()
@@ -440,12 +604,12 @@ class _Run:
                     self.theta, self.values = np.clip(self.theta + _ESCAPE_DEG * direction, lo, hi), self.values_trial
                 self.record(_ESCAPE_DEG)
                 continue
-            qp = qp_step(np.eye(3), np.zeros(3), Gw, -rw, lo - self.theta, hi - self.theta)
+            qp = qp_step(np.eye(self.n), np.zeros(self.n), Gw, -rw, lo - self.theta, hi - self.theta)
             if qp is not None:
                 step = qp[0]
             else:  # the linearised target is out of the box: towards the closest pose
                 gradient = Gw.T @ rw
-                stationary = np.max(np.abs(_projected_gradient(gradient, self.theta, lo, hi))) * (hi[0] - lo[0]) \
+                stationary = np.max(np.abs(_projected_gradient(gradient, self.theta, lo, hi) * (hi - lo))) \
                     <= 1e-10 * float(rw @ rw)
                 if stationary:
                     self.controller._unreachable(self.result(False))
@@ -465,9 +629,8 @@ class _Run:
             if not accepted:
                 if qp is None:
                     self.controller._unreachable(self.result(False))
-                raise _NotConverged(f"inverse control: no step from servo {np.round(self.theta, 6).tolist()} deg "
-                                    f"reduces the misfit {self.misfit.tolist()} (a forward solve failing?)",
-                                    self.result(False))
+                raise _NotConverged(f"inverse control: no step from {self._where()} reduces the misfit "
+                                    f"{self.misfit.tolist()} (a forward solve failing?)", self.result(False))
             self.theta, self.values = trial, self.values_trial
             self.record(float(np.max(np.abs(alpha * step))))
 
@@ -475,7 +638,7 @@ class _Run:
     def iterate(self) -> ControlResult:
         """Restoration, then (fewer targets than servos) quasi-Newton steps along the targets' level set."""
         Gw = self.restore()
-        if len(self.names) == 3:
+        if len(self.names) == self.n:
             return self.result(True)
         previous = None          # (reduced gradient, tangent basis, θ) of the last feasible point
         H = None                 # reduced Hessian of ½|θ − θ⁰|² on the level set (secant updates)
@@ -517,19 +680,30 @@ class _Run:
                 # back to the last feasible point, half the step
                 self.design.problem.restore(state)
                 self.theta, self.values = saved[0].copy(), dict(saved[1])
-                self.design.set_servo_deg(self.theta)
+                self.controller._set(self.theta)
                 step *= 0.5
                 H, stretch = None, max(0.5 * stretch, 1.0)
             if not accepted:
-                logger.info("control: no shorter motion found near servo %s deg (reduced gradient %s deg); "
-                            "stopping there", np.round(self.theta, 6).tolist(), g.tolist())
+                logger.info("control: no shorter motion found near %s (reduced gradient %s); stopping there",
+                            self._where(), g.tolist())
                 return self.result(True)
             previous = (g, Z, saved[0])
             Gw = Gw_new
 
 
+def _escape_direction_n(G: np.ndarray) -> np.ndarray:
+    """:func:`_escape_direction` for any number of unknowns: the first unit vector off the row space of ``G``."""
+    _, sv, Vt = np.linalg.svd(G)
+    basis = Vt[: int(np.sum(sv > _RANK_TOL * sv[0]))]
+    for d in np.eye(G.shape[1]):
+        d = d - basis.T @ (basis @ d)
+        if np.linalg.norm(d) > 0.1:
+            return d / np.linalg.norm(d)
+    return np.eye(G.shape[1])[0]
+
+
 def _tangent_basis(G: np.ndarray) -> np.ndarray:
-    """An orthonormal basis (3, k) of the null space of ``G``, each column's sign fixed (largest entry positive)."""
+    """An orthonormal basis (n, k) of the null space of ``G``, each column's sign fixed (largest entry positive)."""
     _, _, Vt = np.linalg.svd(G)
     Z = Vt[G.shape[0]:].T
     for j in range(Z.shape[1]):
@@ -547,16 +721,22 @@ class _NotConverged(NotConvergedError):
 
 def control_servos(source, targets: Mapping[str, float], *, comm=None, servo_range: Sequence[float] = SERVO_RANGE,
                    tolerances: Mapping[str, float] | None = None, max_iterations: int = 60,
-                   out_dir: str | os.PathLike | None = None) -> ControlResult:
-    """Servo angles of the scene's last step that meet ``targets`` (module docstring).
+                   out_dir: str | os.PathLike | None = None,
+                   unknowns: Mapping[str, Sequence[float] | None] | Sequence[str] | None = None) -> ControlResult:
+    """Servo angles or load factors of the scene's last step that meet ``targets`` (module docstring).
 
     Parameters
     ----------
     source
-        A Tripod scene with servos (TOML path, dict or parsed scene).
+        A scene (TOML path, dict or parsed scene); without ``unknowns``, a Tripod scene with servos.
     targets
         ``{probe: value}``: ``center_height`` (m), ``center_rotation``, ``center_tilt_x``, ``center_tilt_y``
-        (deg); one to three of them.
+        (deg), ``tip_deflection`` (m), or a component ``KIND:GROUP[i]`` of ``displacement`` (m) or
+        ``contact_force`` (N); at most as many as unknowns.
+    unknowns
+        ``{name: (lo, hi) or None}`` (or a list of names): servo angles ``servo0..2`` (deg; default bounds
+        ``servo_range``) and named forces, tractions, pressures, cables (their factor; bounds required). Default:
+        the Tripod's three servos.
     comm
         MPI communicator (default ``MPI.COMM_WORLD``).
     servo_range
@@ -570,7 +750,7 @@ def control_servos(source, targets: Mapping[str, float], *, comm=None, servo_ran
 
     """
     targets = dict(targets)
-    _check_targets(targets, 3)
+    _check_targets(targets, 3 if unknowns is None else len(unknowns), "unknowns")
     if out_dir is not None:  # before any work: a directory that can take control.json
         from mpi4py import MPI
 
@@ -578,7 +758,12 @@ def control_servos(source, targets: Mapping[str, float], *, comm=None, servo_ran
         from foambase.mpi import on_rank0
         on_rank0(MPI.COMM_WORLD if comm is None else comm, lambda: check_output_dir(out_dir, "out_dir"),
                  f"the output directory {out_dir} cannot be used")
-    controller = InverseController(source, comm, servo_range, tolerances, max_iterations)
+    from fenicsfoam.scene import Scene, load_scene
+    scene = source if isinstance(source, Scene) else load_scene(source)
+    if unknowns is None:
+        _check_default_unknowns(scene)
+    _check_target_groups(targets, scene)  # before anything is built
+    controller = InverseController(scene, comm, servo_range, tolerances, max_iterations, unknowns)
     try:
         result = controller.solve(targets)
     except (UnreachableTargetError, _NotConverged) as exc:
@@ -594,11 +779,15 @@ def control_servos(source, targets: Mapping[str, float], *, comm=None, servo_ran
 # The command
 # --------------------------------------------------------------------------------------------------
 def _arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("scene", type=cli.nonempty_path,
-                        help="a Tripod scene file (TOML) with three servos (loads.servos = true or [loads.servo.NAME])")
+    parser.add_argument("scene", type=cli.nonempty_path, help="a scene file (TOML)")
     parser.add_argument("--target", action="append", default=[], metavar="NAME=VALUE", required=True,
-                        help="a target pose component: center_height (m), center_rotation, center_tilt_x, "
-                             "center_tilt_y (deg); repeat for up to three")
+                        help="a target: center_height (m), center_rotation, center_tilt_x, center_tilt_y (deg), "
+                             "tip_deflection (m), or a component KIND:GROUP[i] of displacement (m) or contact_force "
+                             "(N), e.g. 'displacement:tip[2]=-0.01'; repeat for up to as many as unknowns")
+    parser.add_argument("--unknown", action="append", default=[], metavar="NAME[=LO:HI]",
+                        help="an unknown: a servo (servo0..2, deg; default bounds --servo-range) or a named force, "
+                             "traction, pressure or cable of the scene (its factor at the last step; bounds required, "
+                             "e.g. chamber=0:2); repeat; default: the Tripod's three servos")
     parser.add_argument("--out", type=cli.nonempty_path, required=True,
                         help="output directory (control.json; created if needed, other files in it stay)")
     parser.add_argument("--servo-range", type=float, nargs=2, default=list(SERVO_RANGE), metavar=("LO", "HI"),
@@ -606,16 +795,18 @@ def _arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--tol-m", type=float, default=TOLERANCES["m"], help="tolerance of a height target (m)")
     parser.add_argument("--tol-deg", type=float, default=TOLERANCES["deg"],
                         help="tolerance of an angle target (deg)")
+    parser.add_argument("--tol-n", type=float, default=TOLERANCES["N"], help="tolerance of a force target (N)")
     parser.add_argument("--max-iterations", type=int, default=60, help="steps (each a forward solve) at most")
 
 
 def _check(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     try:
-        _check_targets(parse_targets(args.target), 3)
+        unknowns = parse_unknowns(args.unknown)
+        _check_targets(parse_targets(args.target), len(unknowns) or 3, "unknowns")
         _check_range(args.servo_range)
     except InputError as exc:
         parser.error(str(exc))
-    for name in ("tol_m", "tol_deg"):
+    for name in ("tol_m", "tol_deg", "tol_n"):
         value = getattr(args, name)
         if not (math.isfinite(value) and value > 0):
             parser.error(f"--{name.replace('_', '-')} must be > 0, got {value!r}")
@@ -635,26 +826,31 @@ def _run(args: argparse.Namespace) -> int:
     with command_line_options(args.passthrough):
         try:
             result = control_servos(args.scene, parse_targets(args.target), comm=comm,
-                                    servo_range=args.servo_range, tolerances={"m": args.tol_m, "deg": args.tol_deg},
-                                    max_iterations=args.max_iterations, out_dir=args.out)
+                                    servo_range=args.servo_range,
+                                    tolerances={"m": args.tol_m, "deg": args.tol_deg, "N": args.tol_n},
+                                    max_iterations=args.max_iterations, out_dir=args.out,
+                                    unknowns=parse_unknowns(args.unknown) or None)
         except (UnreachableTargetError, _NotConverged):
             if comm.rank == 0:
                 print(f"closest pose written to {args.out / 'control.json'} (reached = false)")
             raise
     if comm.rank == 0:
-        print("servo (deg): " + ", ".join(f"{a:.6f}" for a in result.servo_deg))
+        print("unknowns (servo angles in deg, load factors): "
+              + ", ".join(f"{name} = {value:.6f}" for name, value in result.unknowns.items()))
         for name, value in result.target.items():
-            unit = TARGET_PROBES[name][0]
+            unit = target_unit(name)
             print(f"{name}: target {value:.9g} {unit}, achieved {result.achieved[name]:.9g} {unit}")
         print(f"{result.iterations} iterations, {result.scene_solves} scene solves; {args.out / 'control.json'}")
     return 0
 
 
 CONTROL = cli.Command(
-    "control", "inverse servo control: the Tripod's horn angles for a target centre pose", _arguments, _run,
-    description="Find the servo angles of the scene's last step (earlier steps as written; its angles are the "
-                "initial guess) that put the Tripod's centre at the target (Gauss-Newton with adjoint "
-                "sensitivities, bounded by --servo-range); fewer targets than servos: the least servo motion. "
+    "control", "inverse actuation: the servo angles or load factors that reach target probe values", _arguments,
+    _run,
+    description="Find the unknowns (--unknown: servo angles, factors of named forces, tractions, pressures, cables; "
+                "default the Tripod's servos) of the scene's last step (earlier steps as written; its values are the "
+                "initial guess) that bring the targeted probes to their values (Gauss-Newton with adjoint "
+                "sensitivities, within the bounds); fewer targets than unknowns: the least change. "
                 "Writes OUT/control.json. Exit 3 (with control.json, reached = false, and the closest reachable pose) "
                 "when the target is out of reach or the iteration does not converge. PETSc options after '--' "
                 "apply to the scene's solver (prefix 'scene_'). Works under mpirun.",

@@ -14,6 +14,8 @@ parameter                  meaning (unit)
 ``orientation.offset_deg`` one in-plane angle (deg) added to every *l* axis (the scene's ``offset_deg``; for
                            case A: the arm offset angle of the l axes from the arms)
 ``orientation.pitch_deg``  the pitch of a spiral orientation (deg)
+``NAME`` of a load         the factor of a named force, traction, pressure or cable at the *last* step
+                           (dimensionless; 1 is the value the scene gives the load)
 =========================  ===================================================================================
 
 The *l* axis of a cell is ``a_c = R_z(offset + φ_c) a⁰_c(pitch)``, ``a⁰`` the scene's field without offset;
@@ -21,13 +23,18 @@ The *l* axis of a cell is ``a_c = R_z(offset + φ_c) a⁰_c(pitch)``, ``a⁰`` t
 (:func:`fenicsfoam.orientation.spiral_directions`). Material parameters (``E_solid``, ``density:REGION``,
 ``gamma:REGION``) are first set in the scene itself and checked there (:func:`fenicsfoam.scene.vary_scene`),
 then act through the DG0 moduli and mass density of :class:`fenicsfoam.grading.CellMaterials` (the foam table's
-exact derivatives); servo angles through the Dirichlet values. :meth:`SceneDesign.gradient` chains the adjoint's
+exact derivatives); servo angles through the Dirichlet values, load factors through the load's own term
+(``∂R/∂s``). :meth:`SceneDesign.gradient` chains the adjoint's
 per-cell gradients (:mod:`fenicsfoam.sensitivity`) to the parameters: one factorization and one adjoint solve
 per probe, whatever the number of parameters. Per-cell parameters and their gradients are arrays over the owned
 cells (their global order: :meth:`SceneDesign.gather`).
 
+Targets may also be one component of a vector probe, ``"KIND:GROUP[i]"`` (``displacement:tip[2]``,
+``contact_force:ball[2]``): :meth:`SceneDesign.add_probe` builds them with their gradients.
+
 A *scene solve* (:meth:`SceneDesign.solve`) runs the whole schedule from the reference state;
-:meth:`SceneDesign.solve_last` only moves the last step's servo angles from the current equilibrium (the
+:meth:`SceneDesign.solve_last` only moves the last step's servo angles from the current equilibrium and
+:meth:`SceneDesign.solve_last_step` the last step's angles and load factors (the
 equilibrium of the last step does not depend on the path, so warm starting gives the same state as a full run,
 up to the solver tolerance). Both count in :attr:`SceneDesign.solves`.
 """
@@ -47,14 +54,18 @@ from mpi4py import MPI
 from foambase.cells import num_owned_cells
 from foambase.errors import InputError
 
-__all__ = ["MISFIT_SCALES", "DesignHistory", "DesignResult", "OrientationDesign", "SERVOS", "SceneDesign",
-           "match_probes", "optimize_probe"]
+__all__ = ["ACTUATOR_KINDS", "COMPONENT_KINDS", "MISFIT_SCALES", "DesignHistory", "DesignResult", "OrientationDesign",
+           "SERVOS", "SceneDesign", "match_probes", "optimize_probe"]
 
 logger = logging.getLogger(__name__)
 
 #: The servo parameters of ``loads.servos = true`` (the Tripod's three horns), in order; a scene with
 #: ``[loads.servo.NAME]`` has its own names (:attr:`SceneDesign.servos`).
 SERVOS = ("servo0", "servo1", "servo2")
+#: The load kinds whose named loads are parameters (their factor at the last step): the actuators.
+ACTUATOR_KINDS = ("force", "traction", "pressure", "cable")
+#: Vector probes whose components may be targets (``"KIND:GROUP[i]"``).
+COMPONENT_KINDS = ("displacement", "contact_force")
 _EZ = np.array([0.0, 0.0, 1.0])
 
 
@@ -113,6 +124,19 @@ class OrientationDesign:
         d = math.cos(p) * e_r - h * math.sin(p) * e_t
         d0 = np.column_stack([d, np.zeros(len(d))])
         return _rotate_z(d0, np.radians(self.offset_deg + self.angle_deg)) * (math.pi / 180.0)
+
+
+class _Component:
+    """A scalar probe from a value and a gradient function of the displacement."""
+
+    def __init__(self, value, gradient):
+        self._value, self._gradient = value, gradient
+
+    def __call__(self, u) -> float:
+        return float(self._value(u))
+
+    def gradient(self, u) -> np.ndarray:
+        return self._gradient(u)
 
 
 class SceneDesign:
@@ -174,9 +198,14 @@ class SceneDesign:
         """The servo parameters of the scene: its servo actuators' names (``servo0..2`` with ``loads.servos``)."""
         return tuple(self.scene.servos)
 
+    @property
+    def actuators(self) -> tuple[str, ...]:
+        """The named loads of the scene whose factors are parameters (forces, tractions, pressures, cables)."""
+        return tuple(name for kind in ACTUATOR_KINDS for name in (self.scene.loads.get(kind) or {}))
+
     def parameters(self) -> list[str]:
         """The parameter names this scene has (module docstring)."""
-        names = list(self.servos)
+        names = list(self.servos) + list(self.actuators)
         if self.cells.foams:
             names += ["E_solid", "density", "gamma"]
             for region, spec in self.cells.descriptions.items():
@@ -204,6 +233,8 @@ class SceneDesign:
         self._check(name)
         if name in self.servos:
             return self.servo_deg()[self.servos.index(name)]
+        if name in self.actuators:
+            return self.load_factor(name)
         if name == "E_solid":
             values = {f.E_solid for f in self.cells.foams.values()}
             if len(values) != 1:
@@ -234,6 +265,8 @@ class SceneDesign:
         for name, value in values.items():
             if name in self.servos:
                 servo[self.servos.index(name)] = float(value)
+            elif name in self.actuators:
+                self.set_load_factor(name, float(value))
             elif name == "E_solid":
                 for foam in self.cells.foams.values():
                     foam.E_solid = float(value)
@@ -287,6 +320,55 @@ class SceneDesign:
         self.steps[-1] = replace(last, angles={**last.angles, **{n: math.radians(self._rest_deg(n) + float(a))
                                                                 for n, a in zip(self.servos, angles)}})
 
+    def load_factor(self, name: str) -> float:
+        """The factor of the named load at the end of the last step (the last one a step gives; 0 if none)."""
+        factor = 0.0
+        for step in self.steps:
+            factor = float(step.factors.get(name, factor))
+        return factor
+
+    def set_load_factor(self, name: str, factor: float) -> None:
+        """Set the factor of the named load at the end of the last step."""
+        from dataclasses import replace
+        last = self.steps[-1]
+        self.steps[-1] = replace(last, factors={**last.factors, name: float(factor)})
+
+    def add_probe(self, name: str) -> None:
+        """Build a differentiable probe (a scalar probe kind, or ``"KIND:GROUP[i]"``, one component of a vector).
+
+        ``KIND`` is ``displacement`` (GROUP a facet group: the mean displacement's component, m) or ``contact_force``
+        (GROUP a ``[contacts.NAME]``: the force's component, N). Nothing is done if it exists.
+        """
+        from fenicsfoam.scene import PROBE_KINDS
+        from fenicsfoam.scene.kinds import BuildContext
+        if name in self.probes:
+            return
+        if name in PROBE_KINDS:
+            self.probes[name] = PROBE_KINDS[name].build(BuildContext(self.scene, self.model.tagged, self.problem.V))
+            return
+        kind, _, rest = name.partition(":")
+        group, bracket, index = rest.partition("[")
+        valid = (f"a probe of {', '.join(PROBE_KINDS)}, or KIND:GROUP[i] with KIND in {', '.join(COMPONENT_KINDS)} "
+                 "and i = 0, 1, 2")
+        if kind not in COMPONENT_KINDS or not bracket or index not in ("0]", "1]", "2]"):
+            raise InputError(f"probe {name!r}: not a differentiable probe; valid: {valid}")
+        component = int(index[0])
+        if kind == "displacement":
+            from fenicsfoam.probes import MeanDisplacement
+            if group not in self.scene.facets:
+                raise InputError(f"probe {name!r}: unknown facet group {group!r}; facet groups: "
+                                 f"{', '.join(sorted(self.scene.facets)) or 'none'}")
+            mean = MeanDisplacement(self.problem.V, self.model.tagged.facet_tags, self.scene.facets[group])
+            self.probes[name] = _Component(lambda u: mean(u)[component], lambda u: mean.gradient(u, component))
+        else:
+            contacts = self.scene.loads.get("contact") or {}
+            if group not in contacts:
+                raise InputError(f"probe {name!r}: no contact named {group!r}; declared contacts: "
+                                 f"{', '.join(sorted(contacts)) or 'none'}")
+            contact = self.problem.external[group]
+            self.probes[name] = _Component(lambda u: contact.force()[component],
+                                           lambda u: contact.force_gradient(component))
+
     # ----------------------------------------------------------------------------------------------
     # Solves
     # ----------------------------------------------------------------------------------------------
@@ -322,6 +404,21 @@ class SceneDesign:
                                          increments=max(1, math.ceil(change / increment_deg - 1e-9))))
         return self.values()
 
+    def solve_last_step(self, increment_deg: float = 10.0) -> dict[str, float]:
+        """Move the last step's servo angles and load factors to their set values from the current equilibrium.
+
+        One scene solve; the step's own increments, more if a servo turns by more than ``increment_deg`` per
+        increment. The current state must be an equilibrium of the last step.
+        """
+        from dataclasses import replace
+        last = self.steps[-1]
+        change = max([abs(math.degrees(a - self.problem.loads.angles[n])) for n, a in last.angles.items()],
+                     default=0.0)
+        self.solves += 1
+        self.problem.solve_step(replace(last, increments=max(last.increments,
+                                                             math.ceil(change / increment_deg - 1e-9))))
+        return self.values()
+
     # ----------------------------------------------------------------------------------------------
     # Gradients
     # ----------------------------------------------------------------------------------------------
@@ -350,7 +447,9 @@ class SceneDesign:
                                  f"{differentiable}")
         from fenicsfoam.sensitivity import material_coefficients
 
-        material = [p for p in parameters if p not in self.servos and not p.startswith("orientation")]
+        actuators = [p for p in parameters if p in self.actuators]
+        material = [p for p in parameters if p not in self.servos and p not in actuators
+                    and not p.startswith("orientation")]
         oriented = [p for p in parameters if p.startswith("orientation")]
         coefficients = material_coefficients(self.problem)
         fields = {}
@@ -365,10 +464,12 @@ class SceneDesign:
         result = {}
         comm = self.comm
         for name in probes:
-            g = adjoint.gradient(self.probes[name], fields, motions)
+            g = adjoint.gradient(self.probes[name], fields, motions, actuators)
             out: dict[str, Any] = {}
             for p in motions:
                 out[p] = g.motions[p] * math.pi / 180.0
+            for p in actuators:
+                out[p] = g.loads[p]
             if material:
                 per_cell = {k: sum(g.fields[n] * derivatives[k][n] for n in derivatives[k])
                             for k in ("density", "gamma", "E_solid")}

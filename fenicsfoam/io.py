@@ -69,7 +69,8 @@ class GatheredMesh:
     cells: np.ndarray       #: (m, k) node numbers per cell, VTK order (corners first), row = input cell number
     cell_type: int          #: VTK cell type (10: tetra; 24: quadratic tetra, 10 nodes for P2)
 
-    def to_pyvista(self, point_data: dict[str, np.ndarray] | None = None, cell_data: dict[str, np.ndarray] | None = None):
+    def to_pyvista(self, point_data: dict[str, np.ndarray] | None = None,
+                   cell_data: dict[str, np.ndarray] | None = None):
         """A ``pyvista.UnstructuredGrid`` of the mesh with the given point and cell data."""
         import pyvista
         k = self.cells.shape[1]

@@ -92,11 +92,55 @@ def _figure(title: str):
         fig.add_subplot(grid[:, 2])
 
 
-def plot_displacement(u: fem.Function, path: Path, title: str = "") -> None:
+def _obstacle_meshes(obstacles, points: np.ndarray) -> list[tuple]:
+    """The pyvista meshes of rigid obstacles (:class:`fenicsfoam.contact.Obstacle`), planes sized to the body."""
+    pyvista = _pyvista()
+    size = float(np.ptp(points, axis=0).max()) * 1.5
+    meshes = []
+    for o in obstacles:
+        if o.shape == "sphere":
+            mesh = pyvista.Sphere(radius=o.radius, center=o.center)
+        elif o.shape == "box":
+            mesh = pyvista.Box(bounds=(o.min[0], o.max[0], o.min[1], o.max[1], o.min[2], o.max[2]))
+        else:
+            n = np.asarray(o.normal, float) / np.linalg.norm(o.normal)
+            centre = np.asarray(o.point, float) + (points.mean(axis=0) - o.point) @ (np.eye(3) - np.outer(n, n))
+            mesh = pyvista.Plane(center=centre, direction=n, i_size=size, j_size=size)
+        meshes.append((mesh, {"color": "lightgray", "opacity": 0.5}))
+    return meshes
+
+
+def _draw_obstacles(ax, obstacles, plane: tuple[int, int]) -> None:
+    """Rigid obstacles in a projection (mm): a sphere's outline, a box's, a plane seen edge-on as a line."""
+    import matplotlib.patches
+    i, j = plane
+    k = 3 - i - j
+    style = {"facecolor": "lightgray", "edgecolor": "gray", "alpha": 0.5, "zorder": 0}
+    for o in obstacles:
+        if o.shape == "sphere":
+            ax.add_patch(matplotlib.patches.Circle((1e3 * o.center[i], 1e3 * o.center[j]), 1e3 * o.radius, **style))
+        elif o.shape == "box":
+            ax.add_patch(matplotlib.patches.Rectangle((1e3 * o.min[i], 1e3 * o.min[j]), 1e3 * (o.max[i] - o.min[i]),
+                                                      1e3 * (o.max[j] - o.min[j]), **style))
+        else:
+            n = np.asarray(o.normal, float) / np.linalg.norm(o.normal)
+            if abs(n[k]) > 1e-9:  # not edge-on in this view
+                continue
+            if abs(n[j]) > 1e-12:  # n_i (x_i − p_i) + n_j (x_j − p_j) = 0
+                ax.axline((1e3 * o.point[i], 1e3 * o.point[j]), slope=-n[i] / n[j], color="gray", linewidth=2,
+                          zorder=0)
+            else:
+                ax.axvline(1e3 * o.point[i], color="gray", linewidth=2, zorder=0)
+    if obstacles:
+        ax.autoscale_view()
+
+
+def plot_displacement(u: fem.Function, path: Path, title: str = "", obstacles=()) -> None:
     """Write a PNG of the deformed shape ``x = X + u`` coloured by ``|u|`` (mm), with the reference outline.
 
     Perspective view (axes triad), top view (x–y) and side view (x–z) with axes in mm, one colour bar. Collective;
     rank 0 writes ``path``. P2 fields are drawn at all their nodes (vtk subdivides the quadratic tetrahedra).
+    ``obstacles`` (:class:`fenicsfoam.contact.Obstacle`, where they are) are drawn in light gray.
     """
     import matplotlib.colors
 
@@ -111,7 +155,8 @@ def plot_displacement(u: fem.Function, path: Path, title: str = "") -> None:
     deformed.points = mesh.points + values
     image = _render([(reference.extract_feature_edges(), {"color": "gray", "line_width": 1}),
                      (deformed, {"scalars": "|u| (mm)", "cmap": CMAP, "clim": (0.0, top), "show_scalar_bar": False,
-                                 "show_edges": True, "edge_color": "dimgray", "line_width": 0.3})])
+                                 "show_edges": True, "edge_color": "dimgray", "line_width": 0.3})]
+                    + _obstacle_meshes(obstacles, mesh.points + values))
     fig, ax3d, ax_top, ax_side, ax_bar = _figure(title)
     ax3d.imshow(image)
     ax3d.set_axis_off()
@@ -122,6 +167,8 @@ def plot_displacement(u: fem.Function, path: Path, title: str = "") -> None:
     norm = matplotlib.colors.Normalize(0.0, top)
     _projection(ax_top, x, faces, face_values, (0, 1), x[faces, 2].mean(axis=1), norm, CMAP, "top view (from +z)")
     _projection(ax_side, x, faces, face_values, (0, 2), -x[faces, 1].mean(axis=1), norm, CMAP, "side view (from −y)")
+    for ax, plane in ((ax_top, (0, 1)), (ax_side, (0, 2))):
+        _draw_obstacles(ax, obstacles, plane)
     import matplotlib.cm
     fig.colorbar(matplotlib.cm.ScalarMappable(norm=norm, cmap=CMAP), cax=ax_bar, label="|u| (mm)")
     fig.tight_layout()

@@ -496,6 +496,7 @@ class MeanDisplacement(_VectorProbe):
         _check_displacement_space(V)
         measure, tags, kind = _group_measure(V, meshtags, tags)
         super().__init__(V, lambda u: u, measure)
+        self._measure, self._gradient_forms = measure, {}
         self.size = self._comm.allreduce(
             dolfinx.fem.assemble_scalar(dolfinx.fem.form(dolfinx.fem.Constant(V.mesh, 1.0) * measure)), op=MPI.SUM)
         if not self.size > 0:
@@ -505,6 +506,18 @@ class MeanDisplacement(_VectorProbe):
     def __call__(self, u: dolfinx.fem.Function) -> np.ndarray:
         """Mean displacement (m) for ``u``."""
         return self._integrals(u) / self.size
+
+    def gradient(self, u: dolfinx.fem.Function, component: int) -> np.ndarray:
+        """Derivative of the mean's ``component`` (0, 1, 2) with respect to the owned dofs of ``u`` (it is linear)."""
+        V = self._u.function_space
+        _check_same_space(u, V)
+        if component not in self._gradient_forms:
+            self._gradient_forms[component] = dolfinx.fem.form(ufl.TestFunction(V)[component] * self._measure)
+        b = dolfinx.fem.petsc.assemble_vector(self._gradient_forms[component])
+        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        gradient = b.array.copy() / self.size
+        b.destroy()
+        return gradient
 
 
 class EnclosedVolume(_VectorProbe):

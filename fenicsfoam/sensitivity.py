@@ -11,12 +11,14 @@ depends on the parameters through ``u``. With ``j = ∂J/∂u``, the adjoint ``�
 
     J_ffᵀ λ_f = j_f,
 
-with ``J_ff`` the free–free block of the *exact* tangent ``∂R/∂u`` (the solver's Jacobian form, which for the
-corotational model includes the change of the polar rotation with ``u``; ``tests/test_solver.py`` checks its
-Taylor remainder). Differentiating ``R_f(u(p), p) = 0`` gives
+with ``J_ff`` the free–free block of the *exact* tangent ``∂R/∂u`` (the solver's Jacobian: its form, which for the
+corotational model includes the change of the polar rotation with ``u`` and the contacts' Nitsche terms, and the
+cables' tangent blocks; ``tests/test_solver.py`` checks its Taylor remainder). Differentiating ``R_f(u(p), p) = 0``
+gives
 
     dJ/dm_c = − λ · ∂R/∂m_c                      (one assembly of a DG0 form per coefficient: every cell at once)
     dJ/dθ   =   j · w − λ · (J w),  w = ∂g/∂θ    (the lifted boundary values: ``w`` is zero on free dofs)
+    dJ/ds   = − λ · ∂R/∂s                        (a load factor: the load's term at factor 1, tested with λ)
 
 where ``∂R/∂m`` is ``ufl.derivative`` of the residual form with the test function replaced by ``λ``, and
 ``J w`` the action of the unconstrained Jacobian form on ``w``. One factorization of the tangent serves every
@@ -66,6 +68,7 @@ class ProbeGradient:
     value: float                                            #: the probe's value
     fields: dict[str, np.ndarray] = field(default_factory=dict)  #: ∂J/∂(DG0 coefficient), per owned cell (× components)
     motions: dict[str, float] = field(default_factory=dict)      #: ∂J/∂θ per motion (per radian)
+    loads: dict[str, float] = field(default_factory=dict)        #: ∂J/∂s per external load factor
 
 
 class Adjoint:
@@ -87,14 +90,13 @@ class Adjoint:
     def __init__(self, problem, prefix: str = "adjoint_"):
         if not prefix or not prefix.endswith("_"):
             raise InputError(f"the options prefix must be non-empty and end with '_', got {prefix!r}")
-        if any(hasattr(load, "add_jacobian") for load in problem.external.values()):
-            raise InputError("adjoint sensitivities do not cover cable loads (their tangent is assembled outside the "
-                             "forms): remove the scene's cables to differentiate it")
         if not problem.model.exact_tangent:
             raise InputError(f"adjoint sensitivities need the exact tangent; the {problem.model.name!r} model's "
                              "tangent is approximate (the rotation held fixed): use 'corotational', 'bonet_burton', "
                              "'svk' or 'linear' to differentiate this problem")
         self.problem = problem
+        self._load_forms: dict[str, Any] = {}
+        self._one = None
         V = problem.V
         self._lam = fem.Function(V, name="adjoint")
         self._w = fem.Function(V, name="motion_direction")
@@ -172,9 +174,41 @@ class Adjoint:
         b.destroy()
         return values[:, 0].copy() if bs == 1 else values.copy()
 
+    def load_gradient(self, name: str) -> float:
+        """``−λ · ∂R/∂s`` for the factor ``s`` of the external load ``name`` (force, traction, pressure, cable).
+
+        Every such load is linear in its factor, so ``∂R/∂s`` is its term at factor 1: a UFL form with the test
+        function replaced by ``λ`` (assembled), or a cable's nodal forces at tension factor 1.
+        """
+        problem = self.problem
+        load = problem.external.get(name)
+        if load is None or hasattr(load, "bind_stress"):
+            actuating = sorted(n for n, lo in problem.external.items() if not hasattr(lo, "bind_stress"))
+            raise InputError(f"{name!r} is not an actuating load of the problem (loads: {actuating}); a contact's "
+                             "factor places its obstacle and is not differentiated")
+        comm = problem.V.mesh.comm
+        if hasattr(load, "add_residual"):  # a cable: T ∂L/∂u at factor 1
+            b = problem.u.vector.duplicate()
+            b.set(0.0)
+            load.add_residual(b, problem.u, 1.0, problem.model.finite_strain)
+            n = problem.V.dofmap.index_map.size_local * problem.V.dofmap.index_map_bs
+            local = float(np.dot(self._lam.x.array[:n], b.array[:n]))
+            b.destroy()
+            return -comm.allreduce(local)
+        if name not in self._load_forms:
+            if self._one is None:
+                self._one = fem.Constant(problem.V.mesh, 1.0)
+            term = load.residual(problem.u, self._lam, self._one, problem.model.finite_strain)
+            self._load_forms[name] = fem.form(term)
+        return -comm.allreduce(fem.assemble_scalar(self._load_forms[name]))
+
     def motion_gradient(self, name: str, dJdu: np.ndarray) -> float:
         """``j · w − λ · (J w)`` with ``w = ∂g/∂θ`` of the motion ``name`` at its current angle (per radian)."""
         problem = self.problem
+        if any(hasattr(load, "add_jacobian") for load in problem.external.values()):
+            raise InputError("motion gradients do not cover cable loads (a cable's tangent on prescribed nodes is "
+                             "left out of the solver's matrix): remove the scene's cables, or differentiate with "
+                             "respect to load factors only")
         motion = problem.motions[name]
         V = problem.V
         bs = V.dofmap.index_map_bs
@@ -194,7 +228,7 @@ class Adjoint:
 
     # ----------------------------------------------------------------------------------------------
     def gradient(self, probe, fields: Mapping[str, fem.Function] | None = None,
-                 motions: Sequence[str] = ()) -> ProbeGradient:
+                 motions: Sequence[str] = (), loads: Sequence[str] = ()) -> ProbeGradient:
         """Value and derivatives of ``probe`` with respect to DG0 coefficients and motion angles.
 
         Parameters
@@ -206,6 +240,8 @@ class Adjoint:
             :class:`~fenicsfoam.constitutive.MaterialField` and the orientation field.
         motions
             Names of motions whose angle derivative is wanted.
+        loads
+            Names of external loads whose factor derivative is wanted (:meth:`load_gradient`).
 
         """
         u = self.problem.u
@@ -220,6 +256,8 @@ class Adjoint:
             if name not in self.problem.motions:
                 raise InputError(f"{name!r} is not a motion of the problem (motions: {sorted(self.problem.motions)})")
             result.motions[name] = self.motion_gradient(name, dJdu)
+        for name in loads:
+            result.loads[name] = self.load_gradient(name)
         return result
 
     def destroy(self) -> None:

@@ -9,10 +9,10 @@ building a function space. :func:`choose_solver` picks the linear solver of the 
   tangent is symmetric and GMRES for the corotational one (:func:`solver_options`), otherwise.
 
 Why by memory: measured on the Fig. 6 beam at P2 (``bench/bench_large_runs.py``; the benchmark page of 2026-11-27,
-"large runs"), LU is faster per Newton iteration at every measured size (10k–130k dofs) and its lead grows with
-size, so there is no time crossover to switch at; LU's memory grows faster than linearly and GAMG's linearly, so the
-iterative solver is what runs when LU would not fit, and above :data:`ITERATIVE_ABOVE_DOFS`, where the LU model
-would be extrapolated far beyond the measurements.
+"large runs"), LU is about 16× faster per Newton iteration at every measured size (10k–125k dofs; the two times
+grow alike, as n^1.5), so there is no time crossover to switch at; LU's memory grows faster than linearly and
+GAMG's linearly, so the iterative solver is what runs when LU would not fit, and above :data:`ITERATIVE_ABOVE_DOFS`,
+where the LU model would be extrapolated far beyond the measurements.
 
 :func:`estimate` is a model calibrated by the same measurements (serial, P2, corotational, CPU time on a shared
 machine): peak resident memory ``M = ranks × M0 + a · dofs^p`` and the CPU time of one Newton iteration
@@ -41,12 +41,13 @@ __all__ = ["ITERATIVE_ABOVE_DOFS", "MODEL", "NEWTON_PER_INCREMENT", "SOLVERS", "
 SOLVERS = ("auto", "direct", "iterative")
 #: Above this many dofs ``auto`` picks the iterative solver (the measured crossover, rounded).
 ITERATIVE_ABOVE_DOFS = 1_000_000
-#: Resident memory of one process before any mesh (Python, dolfinx, PETSc, the scene's forms), bytes.
-BASELINE_BYTES = 330 * 2**20
-#: ``solver: (a, p, c, q)``: memory ``a · dofs^p`` bytes above the baseline, ``c · dofs^q`` s per Newton iteration.
+#: Resident memory of one process before any mesh (Python, dolfinx, PETSc, the scene's forms), bytes (fitted).
+BASELINE_BYTES = 207 * 2**20
+#: ``solver: (a, p, c, q)``: memory ``a · dofs^p`` bytes above the baseline, ``c · dofs^q`` CPU s per Newton
+#: iteration (``bench/bench_large_runs.py --fit``, the benchmark page of 2026-11-27).
 MODEL: dict[str, tuple[float, float, float, float]] = {
-    "direct": (1.1e3, 1.17, 2.0e-7, 1.55),
-    "iterative": (2.6e3, 1.0, 2.2e-5, 1.0),
+    "direct": (86.2, 1.402, 8.9e-8, 1.502),
+    "iterative": (1.29e3, 1.0, 1.72e-6, 1.480),
 }
 #: Newton iterations per load increment assumed by the time estimate (the scenes' median is 3–5).
 NEWTON_PER_INCREMENT = 4
@@ -106,8 +107,11 @@ def size_of(mesh, degree: int) -> tuple[int, int]:
 
 
 def choose_solver(solver: str, dofs: int, direct_fits: bool = True) -> str:
-    """``direct`` or ``iterative``: ``solver`` itself; for ``auto`` the direct solver up to :data:`ITERATIVE_ABOVE_DOFS`
-    dofs while its estimated memory fits (``direct_fits``), the iterative one otherwise."""
+    """``direct`` or ``iterative``: ``solver`` itself, or for ``auto`` by size and memory.
+
+    ``auto``: the direct solver up to :data:`ITERATIVE_ABOVE_DOFS` dofs while its estimated memory fits
+    (``direct_fits``), the iterative one otherwise.
+    """
     if solver not in SOLVERS:
         raise InputError(f"solver must be one of {', '.join(SOLVERS)}, got {solver!r}")
     if solver != "auto":

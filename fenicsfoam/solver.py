@@ -346,9 +346,10 @@ class ElasticityProblem:
           or the Newton correction is below ``snes_stol`` of the solution.
         * ``mat_type`` (read by this class, not by PETSc): ``None`` picks ``baij`` (3×3 blocks, half the
           assembly time of ``aij``) for direct solvers and ``aij`` otherwise (GAMG needs it).
-        * Large problems: ``{"ksp_type": "cg", "pc_type": "gamg", "ksp_rtol": 1e-8}`` (``gmres`` for the
-          corotational model with a TI material, whose exact tangent is not symmetric); the rigid-body
-          near-nullspace is always attached to the Jacobian. See ``bench/bench_newton.py`` for when it wins.
+        * The iterative alternative: ``{"ksp_type": "cg", "pc_type": "gamg", "ksp_rtol": 1e-8}`` (``gmres`` for
+          the corotational model, whose exact tangent is not symmetric); the rigid-body near-nullspace is always
+          attached to the Jacobian. Measured, it is slower than LU at every size but needs far less memory: scenes
+          take it when LU would not fit (:mod:`fenicsfoam.sizing`, ``bench/bench_large_runs.py``).
         """
         return {
             "snes_type": "newtonls",
@@ -617,8 +618,8 @@ class ElasticityProblem:
         the Dirichlet conditions, and of the adjoint equations (:mod:`fenicsfoam.sensitivity`). The rotation
         field is updated from ``u`` first. ``A`` is reused if given (the pattern of :meth:`snes`'s matrix).
         """
-        if A is None:
-            A = create_matrix(self._jacobian, self._A.getType())
+        if A is None:  # the solver's pattern (a cable's couplings included)
+            A = self._A.duplicate()
         self.u.x.scatter_forward()
         if self.rotation is not None:
             self.rotation.update()
@@ -679,6 +680,10 @@ class ElasticityProblem:
             snes.solve(None, self._x)
         self._sync(self._x)
         reason = snes.getConvergedReason()
+        if snes.getKSP().getConvergedReason() == PETSc.KSP.ConvergedReason.DIVERGED_PCSETUP_FAILED:
+            # A failed factorization (e.g. MUMPS out of workspace on a wild iterate) would be kept and fail every
+            # later solve, the cut-back's smaller increments included: the next attempt factors afresh.
+            snes.getKSP().reset()
         history = snes.getConvergenceHistory()[0].copy()
         name = _SNES_REASONS.get(reason, str(reason))
         if reason > 0 and self.model.finite_strain:

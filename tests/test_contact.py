@@ -89,6 +89,22 @@ def test_a_block_pressed_onto_a_plane_carries_the_load_and_closes_the_gap_at_sec
     assert gaps[2] / gaps[4] > 3.0
 
 
+def test_a_box_obstacle_acts_as_its_top_face():
+    """A block pressed on a wide box whose top face is the plane z = 0: the same state as on that plane."""
+    from fenicsfoam.solver import LoadStep
+
+    def box(mesh, tags):
+        from fenicsfoam.contact import Contact, Obstacle
+        return Contact("table", mesh, tags, BOTTOM, Obstacle("box", min=(-0.05, -0.05, -0.02), max=(0.06, 0.06, 0.0)))
+    states = []
+    for obstacle in (plane(), box):
+        problem = block(SELF, 2, loads=[press(0.1), obstacle], motions=[guide])
+        problem.solve_step(LoadStep("press", factors={"press": 1.0}, increments=2))
+        states.append((problem.u.x.array.copy(), problem.external["table"].force()))
+    np.testing.assert_allclose(states[1][0], states[0][0], rtol=0, atol=1e-12 * np.abs(states[0][0]).max())
+    np.testing.assert_allclose(states[1][1], [0.0, 0.0, 0.1], rtol=0, atol=1e-9)
+
+
 def test_a_moving_plane_against_a_clamped_block_matches_a_frictionless_support():
     """The plane moved up by δ (the load factor) against a block clamped on top, and the same block with its bottom
     face moved by δ in z only (a frictionless support): the same force to the discretisation error."""
@@ -273,3 +289,32 @@ def test_contact_on_two_ranks_equals_one():
     np.testing.assert_allclose(forces[0], forces[1], rtol=1e-10, atol=1e-14)
     assert parallel.penetration() == pytest.approx(serial.penetration(), rel=1e-8)
     assert parallel.contact_area() == pytest.approx(serial.contact_area(), rel=1e-12)
+
+
+@pytest.mark.slow  # ≈ 13 s wall (5 s CPU) on the shared 2-core box
+def test_a_failed_factorization_is_not_reused_by_the_cut_back():
+    """The pneumatic finger inflated to 20 kPa onto a ball in one increment: the full increment's Newton iterates run
+    deep into the ball and the LU factorization fails; the halved increments factor afresh and reach the state of
+    a run in four increments."""
+    import tomllib
+    from pathlib import Path
+
+    scenes = Path(__file__).resolve().parents[1] / "demos" / "scenes"
+    data = tomllib.loads((scenes / "finger_pneumatic.toml").read_text())
+    data["geometry"]["h"] = 0.004
+    data["fem"]["degree"] = 1
+    data["outputs"] = {"png": False, "xdmf": False}
+    data["loads"]["gravity"] = [9.81, 0.0, 0.0]
+    data["contacts"] = {"ball": {"group": "bottom", "obstacle": "sphere", "radius": 0.02,
+                                 "center": [0.08, 0.0, -0.0295]}}
+    data["probes"] = ["contact_force:ball"]
+    forces, cutbacks = [], []
+    for increments in (1, 4):
+        data["steps"] = [{"label": "rest", "gravity": 1.0},
+                         {"label": "p20kPa", "loads": {"chamber": 1.0}, "increments": increments}]
+        last = run_scene(parse_scene(data), comm=SELF).steps[-1]
+        forces.append(last.probes["contact_force:ball"])
+        cutbacks.append(last.cutbacks)
+    assert cutbacks[0] >= 1  # the failed full increment was cut back
+    np.testing.assert_allclose(forces[0], forces[1], rtol=1e-6, atol=1e-9)
+    assert forces[1][2] > 0.05

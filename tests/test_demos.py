@@ -21,7 +21,8 @@ DEMOS = sorted(p for folder in ("demos", "studies") for p in (ROOT / folder).glo
 # --ci runs of more than about a minute (wall_foam: three polyhedral wall foams built and homogenized; tripod_as_built:
 # two as-built Tripods, ≈ 30 s serial, a measurement study) run in
 # `make test-all`; their library paths are tested in the fast suite (test_tables, test_rve_box, test_polyhedral_foam).
-SLOW = {("studies", "wall_foam"), ("studies", "tripod_as_built")}
+# gripper: a pressure sweep with contact and an inverse-actuation solve, ≈ 30 s serial --ci on the shared 2-core box.
+SLOW = {("studies", "wall_foam"), ("studies", "tripod_as_built"), ("demos", "gripper")}
 CASES = [pytest.param(p, marks=pytest.mark.slow) if (p.parent.name, p.stem) in SLOW else p for p in DEMOS]
 TIMEOUT_S = 900
 

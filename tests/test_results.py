@@ -113,6 +113,9 @@ def test_pyvista_reads_the_collection_one_time_per_step(bar):
     assert grid.n_cells == result.n_cells
     assert np.allclose(grid.cell_data["det_F"], STRETCH[1])
     assert bytes(np.asarray(grid.field_data["step_label"]).ravel()).decode() == "large"
+    single = pyvista.read(out / "solution_001_large.vtu")  # one step's file on its own
+    assert np.array_equal(single.cell_data["cauchy_stress"], grid.cell_data["cauchy_stress"])
+    assert np.array_equal(single.point_data["displacement"], read_solution(out).displacement("large"))
     summary = json.loads((out / "summary.json").read_text())
     assert {"solution.pvd", "solution_000_small.vtu", "solution_001_large.vtu", "run.log"} <= set(summary["files"])
     log = (out / "run.log").read_text()
@@ -193,7 +196,8 @@ def test_an_oversized_run_is_refused_before_assembly(tmp_path, monkeypatch, caps
     status = fenicsfoam_main(["run", str(scene), "--out", str(tmp_path / "out")])
     err = capsys.readouterr().err
     assert status == 2
-    assert re.search(r"\d+ cells, \d+ dofs on 1 rank\(s\), direct solver .*estimated \d+ MB of memory "
+    # neither solver fits: auto falls back to the iterative one, which does not fit either
+    assert re.search(r"\d+ cells, \d+ dofs on 1 rank\(s\), iterative solver .*estimated \d+ MB of memory "
                      r"\(100 MB available\)", err), err
     assert "--force" in err and not (tmp_path / "out").exists()
     # forced, it runs (the estimate is only an estimate)
@@ -246,9 +250,10 @@ def test_sigint_during_a_newton_solve_stops_within_seconds(tmp_path):
             os.killpg(process.pid, signal.SIGKILL)
             process.communicate()
     assert process.returncode == 130, stderr
-    assert stopped < 4.0
+    assert stopped < 8.0  # seconds, on a loaded machine; typically under 2
     summary = json.loads((out / "summary.json").read_text())
     assert summary["status"] == "interrupted" and "SIGINT" in summary["error"]
+    assert "compiled call" not in summary["error"]  # stopped by the solver's monitors, not by the watcher's deadline
     names = {p.name for p in out.iterdir()}
     assert not [n for n in names if n.startswith(".")]  # no temporary left
     assert names <= {"summary.json", "probes.csv", "run.log", "solution.pvd", *(
@@ -285,3 +290,58 @@ def test_a_main_thread_stuck_in_compiled_code_is_ended_after_force_s(tmp_path):
     from foambase.signals import FORCE_S
     assert process.returncode == 143 and FORCE_S - 0.5 < stopped < FORCE_S + 3
     assert marker.read_text() == "SIGTERM"
+
+
+def test_the_solver_by_size():
+    from fenicsfoam.sizing import ITERATIVE_ABOVE_DOFS, choose_solver, estimate
+    from foambase.errors import InputError
+
+    assert choose_solver("auto", 10_000) == "direct"
+    assert choose_solver("auto", 10_000, direct_fits=False) == "iterative"
+    assert choose_solver("auto", ITERATIVE_ABOVE_DOFS + 1) == "iterative"
+    assert choose_solver("direct", 10**8) == "direct"
+    with pytest.raises(InputError, match="solver must be one of auto, direct, iterative"):
+        choose_solver("lu", 10)
+    # the model against two measurements of the benchmark page (P2 beam, 83 166 and 37 770 dofs)
+    assert estimate(16595, 83166, "direct", available=1e12).memory_bytes == pytest.approx(866 * 2**20, rel=0.05)
+    assert estimate(6974, 37770, "iterative", available=1e12).memory_bytes == pytest.approx(264 * 2**20, rel=0.05)
+    assert not estimate(0, 10**6, "direct", available=4e9).fits
+
+
+def test_the_iterative_solver_reaches_the_same_state(tmp_path):
+    """Krylov + GAMG (forced): the stretched bar's analytic state again, and the summary says which solver ran."""
+    scene = tmp_path / "bar.toml"
+    scene.write_text(BAR.replace("png = false", "png = false\nxdmf = false"))
+    result = run_scene(scene, tmp_path / "out", solver="iterative")
+    assert result.estimate["solver"] == "iterative"
+    u = result.displacement
+    x = u.function_space.tabulate_dof_coordinates()
+    values = u.x.array.reshape(-1, 3)
+    assert np.allclose(values[:, 0], (STRETCH[1] - 1) * x[:, 0], rtol=0, atol=1e-7 * L)  # every node, not only
+    assert np.allclose(values[:, 1:], 0.0, rtol=0, atol=1e-7 * L)                      # the prescribed ones
+
+
+def test_progress_shows_on_a_terminal(tmp_path):
+    """stderr a terminal (a pseudo-terminal here): a status line rewritten in place with the Newton iterations."""
+    import pty
+
+    scene = tmp_path / "bar.toml"
+    scene.write_text(BAR.replace("png = false", "png = false\nxdmf = false"))
+    leader, follower = pty.openpty()
+    process = subprocess.Popen([sys.executable, "-m", "fenicsfoam.cli", "run", str(scene), "--out",
+                                str(tmp_path / "out")], stdout=subprocess.DEVNULL, stderr=follower)
+    os.close(follower)
+    shown = b""
+    while True:
+        try:
+            chunk = os.read(leader, 4096)
+        except OSError:  # the terminal closed with the process
+            break
+        if not chunk:
+            break
+        shown += chunk
+    os.close(leader)
+    assert process.wait(timeout=60) == 0
+    text = shown.decode(errors="replace")
+    assert re.search(r"\rstep large, load factor 1: Newton iteration \d, residual", text), text[-500:]
+    assert "step 2/2 large: done" in text

@@ -193,17 +193,6 @@ def test_servo_gradient_in_degrees_matches_the_motion_gradient_in_radians(case_b
     assert g == pytest.approx(raw * math.pi / 180.0, rel=1e-12)
 
 
-def test_cable_loads_are_refused():
-    # a cable's tangent is assembled outside the forms the adjoint differentiates: refused, not silently inexact
-    from foambase.errors import InputError
-
-    data = tomllib.loads((SCENES / "finger_cable.toml").read_text())
-    data["outputs"] = {"png": False, "xdmf": False}
-    design = SceneDesign(parse_scene(data))
-    with pytest.raises(InputError, match="cable loads"):
-        _ = design.adjoint
-
-
 def test_group_probes_are_values_without_gradients():
     # a scene with KIND:GROUP probes (vectors, the chamber's volume) solves as a design; asking their gradient is
     # refused, naming the differentiable probes

@@ -47,8 +47,9 @@ from foambase.files import TEMPORARY, check_output_dir, write_json_atomic, write
 from foambase.mpi import on_rank0
 from foambase.signals import discard_temporary, register_temporary
 
-__all__ = ["FIXED_OUTPUTS", "LOG_FILE", "MARGIN_DIRECTIONS", "Progress", "MARGIN_MAX_CELLS", "STATUSES", "FieldSeries", "RunFolder", "SceneResult", "StepResult", "XdmfSeries", "output_path",
-           "picture_orientation", "picture_step", "probes_csv", "series_file", "write_summary"]
+__all__ = ["FIXED_OUTPUTS", "LOG_FILE", "MARGIN_DIRECTIONS", "MARGIN_MAX_CELLS", "STATUSES", "FieldSeries",
+           "Progress", "RunFolder", "SceneResult", "StepResult", "XdmfSeries", "output_path", "picture_orientation",
+           "picture_step", "probes_csv", "series_file", "write_summary"]
 
 logger = logging.getLogger(__name__)
 
@@ -333,7 +334,23 @@ class XdmfSeries:
 def picture_step(u, out_dir: Path, scene: Scene, label: str) -> None:
     """``<label>.png``: the deformed shape at the end of a step (collective; rank 0 writes)."""
     from fenicsfoam.plotting import plot_displacement
-    plot_displacement(u, output_path(out_dir, f"{label}.png"), title=f"{scene.name}: {label}")
+    plot_displacement(u, output_path(out_dir, f"{label}.png"), title=f"{scene.name}: {label}",
+                      obstacles=_obstacles(scene, label))
+
+
+def _obstacles(scene: Scene, label: str) -> list:
+    """The scene's contact obstacles where they are at the end of the step ``label`` (none without contacts)."""
+    contacts = scene.loads.get("contact") or {}
+    if not contacts:
+        return []
+    from fenicsfoam.contact import OBSTACLES, Obstacle
+    factors = dict.fromkeys(contacts, 0.0)
+    for step in scene.steps:
+        factors.update({k: v for k, v in step.loads.items() if k in contacts})
+        if step.label == label:
+            break
+    return [Obstacle(spec["obstacle"], **{k: spec[k] for k in OBSTACLES[spec["obstacle"]]})
+            .moved([factors[name] * m for m in spec["motion"]]) for name, spec in contacts.items()]
 
 
 def picture_orientation(orientation, out_dir: Path, scene: Scene) -> None:

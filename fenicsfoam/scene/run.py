@@ -110,8 +110,9 @@ def _sizer(scene: Scene, comm, solver: str, force: bool, announce):
         announce(text)
         if not estimate.fits and not force:
             raise sizing.TooLargeError(f"{text}: this run would not fit in the memory available; make the mesh "
-                                       "coarser ([geometry] h), use degree = 1 or more memory, or force it "
-                                       "(--force; run_scene(force=True))")
+                                       f"coarser ([geometry] h){', use degree = 1' if scene.degree == 2 else ''}, "
+                                       "run on a machine with more memory, or force it (--force; "
+                                       "run_scene(force=True))")
         if own or kind == "direct":
             return {}
         return sizing.solver_options(kind, as_model(scene.model).symmetric_tangent)

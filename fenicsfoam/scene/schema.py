@@ -1,8 +1,8 @@
 """A scene's schema: the TOML read section by section and validated into a :class:`Scene` before anything is built.
 
 :func:`parse_scene` reads the sections in the order of the file's layout (``[geometry]``, ``[fem]``,
-``[regions.*]``, ``[[blends]]``, ``[orientation]``, ``[loads]``, ``[[steps]]``, ``probes``, ``[outputs]``), one reader
-each; the
+``[regions.*]``, ``[[blends]]``, ``[orientation]``, ``[loads]`` (with ``[contacts.*]``), ``[[steps]]``, ``probes``,
+``[outputs]``), one reader each; the
 first problem raises :class:`~fenicsfoam.scene.table.SceneError` naming its key path. Probes and load keys are
 validated by their entries in :mod:`fenicsfoam.scene.kinds`.
 """
@@ -46,8 +46,8 @@ PETSC_PREFIX = "scene_"
 #: Step labels name output files (``<label>.png``), so they are safe file names on every platform: ASCII letters,
 #: digits, ``_``, ``-`` and ``.``, starting with a letter or a digit, at most 64 characters.
 LABEL_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
-#: Names of a run's fixed outputs (``summary.json``, ``probes.csv``, ``solution.xdmf``, ``orientation.png``): no
-#: step label may take one (compared without case, as case-insensitive file systems do).
+#: Names of a run's fixed outputs (``summary.json``, ``probes.csv``, ``solution.pvd``, ``orientation.png``,
+#: ``run.log``): no step label may take one (compared without case, as case-insensitive file systems do).
 RESERVED_NAMES = ("summary", "probes", "solution", "orientation", "run")
 
 
