@@ -256,7 +256,8 @@ class SceneDesign:
         """Set parameters (``{name: value}``) and update the coefficient data; solve afterwards."""
         for name in values:
             self._check(name)
-        scalars = {n: v for n, v in values.items() if n == "E_solid" or ":" in n}
+        scalars = {n: v for n, v in values.items()  # the material numbers: E_solid, density:REGION, gamma:REGION
+                   if n not in self.servos and n not in self.actuators and (n == "E_solid" or ":" in n)}
         if scalars:  # the scene's own values, checked as a scene's (fenicsfoam.scene.vary_scene) before any change
             from fenicsfoam.scene import vary_scene
             self.scene = vary_scene(self.scene, {n: float(v) for n, v in scalars.items()})
