@@ -63,6 +63,8 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("scene", type=cli.nonempty_path, help="the scene file (TOML)")
     parser.add_argument("--out", type=cli.nonempty_path, required=True,
                         help="output directory: new, empty, or a previous run's folder (its files are replaced)")
+    parser.add_argument("--wait", action="store_true",
+                        help="if another run is writing into --out, wait for it to end (default: refuse)")
     parser.add_argument("--uncertainty", action="store_true",
                         help="also run once per seed of the foam table: every probe as value ± standard deviation "
                              "(summary.json: probes_std per step)")
@@ -80,8 +82,15 @@ def _run_arguments(parser: argparse.ArgumentParser) -> None:
 def _run_check(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     if args.samples is not None and not args.uncertainty:
         parser.error("--samples is used only with --uncertainty")
-    if args.samples is not None and not args.samples.is_file():
+    if args.samples is not None and not args.samples.exists():
         parser.error(f"--samples: file {str(args.samples)!r} does not exist")
+    if args.samples is not None:
+        from foambase.errors import InputError
+        from foambase.files import check_input_file
+        try:
+            check_input_file(args.samples, "--samples")
+        except InputError as exc:
+            parser.error(str(exc))
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -99,7 +108,7 @@ def _run(args: argparse.Namespace) -> int:
     from foambase.petsc_options import command_line_options
 
     comm = MPI.COMM_WORLD
-    RunFolder(args.out, comm, what="--out").check()
+    RunFolder(args.out, comm, what="--out", wait=args.wait).check()
     with command_line_options(args.passthrough):
         if args.uncertainty:
             from fenicsfoam.uncertainty import run_with_uncertainty
@@ -109,7 +118,7 @@ def _run(args: argparse.Namespace) -> int:
                                           echo=lambda text: print(text, flush=True))
         else:
             result = run_scene(args.scene, args.out, comm=comm, solver=args.solver, force=args.force,
-                               echo=lambda text: print(text, flush=True))
+                               echo=lambda text: print(text, flush=True), wait=args.wait)
     if comm.rank == 0:
         print(result.table())
         print(f"outputs in {args.out}")

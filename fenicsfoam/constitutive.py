@@ -45,8 +45,9 @@ Stresses are ``ufl.diff`` of ψ with respect to the strain made a ``ufl.variable
   volumetric term is ``λ/2 (ln J)²``; ``(J - 1)²`` has the same small-strain limit and is convex in ``J``.) It is
   not polyconvex: the term ``-a/2 I₅`` with ``a = μ_T - μ_L > 0`` softens the material under stretch along and
   across ``l`` and under shear, and for the project's foams (``μ_L`` a few per cent of ``μ_T``) strong
-  ellipticity is lost at a 2 % stretch or a 5 % shear (``tests/test_models.py``), earlier than ``corotational``
-  in tension and later in transverse compression.
+  ellipticity is lost at a 1–2 % stretch or a 2–5 % shear (``tests/test_models.py``,
+  ``studies/ellipticity_models.py``), where ``corotational`` stays elliptic; ``corotational`` loses it first in
+  compression across ``l``.
 
 No polyconvex energy built from the usual TI invariants (``I₁``, ``I₂ = tr cof C``, ``J``, ``I₄``,
 ``K₃ = a·cof C a``, ``|F(I - A)|²``, ``|cof F (I - A)|²`` through convex non-decreasing functions, and convex

@@ -406,13 +406,28 @@ def field_values(spec, mesh, cell_tags, cells: np.ndarray, what: str) -> np.ndar
         if missing:
             raise InputError(f"{what}: cell tags {missing} have no value (values given for {sorted(table)})")
         return np.array([table[int(t)] for t in tags])
-    f = import_callable(spec["function"]) if isinstance(spec["function"], str) else spec["function"]
+    from foambase.mpi import on_every_rank
+
     midpoints = compute_midpoints(mesh, mesh.topology.dim, cells.astype(np.int32))
-    values = np.asarray(f(midpoints), dtype=float)
-    if values.shape != (cells.size,):
-        raise InputError(f"{what}: the function must map points ({cells.size}, 3) to values ({cells.size},), "
-                         f"got shape {values.shape}")
-    return values
+
+    def evaluate() -> np.ndarray:
+        try:
+            f = import_callable(spec["function"]) if isinstance(spec["function"], str) else spec["function"]
+        except InputError as exc:
+            raise InputError(f"{what}: {exc}") from exc
+        try:
+            values = np.asarray(f(midpoints))
+        except (Exception, SystemExit) as exc:  # the user's function: named, on every rank (it may fail on one)
+            raise InputError(f"{what}: {spec['function']}(x) raised {type(exc).__name__}: {exc}") from exc
+        if np.iscomplexobj(values):
+            raise InputError(f"{what}: the function returned complex values (e.g. {values.ravel()[:1]}); "
+                             "it must return real numbers")
+        values = np.asarray(values, dtype=float)
+        if values.shape != (cells.size,):
+            raise InputError(f"{what}: the function must map points ({cells.size}, 3) to values ({cells.size},), "
+                             f"got shape {values.shape}")
+        return values
+    return on_every_rank(mesh.comm, evaluate, f"{what}: the function failed")
 
 
 def _is_number(value) -> bool:

@@ -242,9 +242,14 @@ def read_solution(out_dir: str | os.PathLike) -> Solution:
     if not path.is_file():
         raise InputError(f"{path} does not exist: run the scene with [outputs] xdmf = true (the default) and an "
                          "output directory")
-    with np.load(path, allow_pickle=False) as data:
-        return Solution(points=data["points"], cells=data["cells"], cell_type=int(data["cell_type"]),
-                        labels=tuple(str(label) for label in data["labels"]), displacements=data["displacements"])
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return Solution(points=data["points"], cells=data["cells"], cell_type=int(data["cell_type"]),
+                            labels=tuple(str(label) for label in data["labels"]),
+                            displacements=data["displacements"])
+    except (OSError, ValueError, KeyError, EOFError, TypeError, AttributeError) as exc:  # not a run's archive
+        raise InputError(f"{path}: not a solution archive written by a scene run ({type(exc).__name__}: "
+                         f"{exc})") from exc
 
 
 class SolutionWriter:

@@ -182,7 +182,11 @@ def from_callable(mesh: Mesh, f: Callable[[np.ndarray], np.ndarray]) -> fem.Func
     """
     tdim = mesh.topology.dim
     midpoints = compute_midpoints(mesh, tdim, np.arange(num_owned_cells(mesh), dtype=np.int32))
-    directions = np.asarray(f(midpoints), dtype=float)
+    directions = np.asarray(f(midpoints))
+    if np.iscomplexobj(directions):
+        raise OrientationError(f"from_callable: f returned complex directions (e.g. {directions.ravel()[:1]}); "
+                               "it must return real numbers")
+    directions = np.asarray(directions, dtype=float)
     if directions.shape != midpoints.shape:
         raise OrientationError(f"from_callable: f must map points of shape {midpoints.shape} to directions of "
                                f"the same shape, got {directions.shape}")

@@ -25,23 +25,33 @@ registry is imported lazily), then set up logging on rank 0 (:func:`foambase.log
 ``-vv`` DEBUG). Errors of the family are printed once, on rank 0, as ``PROG COMMAND: error: message``. The command
 runs inside :func:`foambase.signals.interruptible`: a SIGTERM unwinds like a Ctrl-C (clean-up code runs, temporary
 files are removed) and either is reported as ``PROG COMMAND: interrupted by SIGNAL``.
+
+Under ``mpirun`` no rank is left waiting for one that failed: a failing rank checks that every other rank is
+failing too (:func:`foambase.mpi.failed_together`, within :data:`foambase.mpi.FAILURE_GRACE_S`); if one is not
+(an error that only some ranks met, outside the collective checks of :mod:`foambase.mpi`), the failing rank prints
+``PROG COMMAND: error on rank R only: message`` and stops the job with the error's exit status (``MPI_Abort``).
+A ``sys.exit`` called inside a command (e.g. by a user's function) is a failure (status 1), never a silent success.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+import traceback
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from foambase.errors import EXIT_OK, FenicsfoamError, exit_code
+from foambase.errors import EXIT_FAILURE, EXIT_OK, FenicsfoamError, exit_code
+from foambase.files import UNCLOSABLE
 from foambase.logs import launcher_rank, setup_logging
+from foambase.mpi import abort, exited, failed_together
 from foambase.signals import interruptible
 from foambase.threads import single_threaded_blas_by_default
 
 __all__ = ["EPILOG", "Command", "build_parser", "dispatch", "main", "main_single", "nonempty_path", "report_checks",
-           "resolve"]
+           "resolve", "shorten"]
 
 #: The exit status of a Ctrl-C (128 + SIGINT).
 EXIT_INTERRUPTED = 130
@@ -138,19 +148,62 @@ def dispatch(parser: argparse.ArgumentParser, argv: Sequence[str]) -> int:
         own_parser.error(f"unrecognized arguments after '--': {' '.join(passthrough)}")
     args.passthrough = passthrough
     setup_logging(args.verbose + getattr(args, "verbose_global", 0))
+    code = _dispatch(own_parser, command, args)
+    if UNCLOSABLE:  # a native file that failed to write: the exit-time clean-up of its library would crash
+        _exit_without_cleanup(code)
+    return code
+
+
+#: The longest error message printed whole (a message quoting a huge value is cut in its middle).
+MAX_MESSAGE = 2000
+
+
+def shorten(text: str, limit: int = MAX_MESSAGE) -> str:
+    """``text``, or its first and last ``limit // 2`` characters around a note of how many were left out."""
+    if len(text) <= limit:
+        return text
+    half = limit // 2
+    return f"{text[:half]} … ({len(text) - 2 * half} characters left out) … {text[-half:]}"
+
+
+def _exit_without_cleanup(code: int) -> None:
+    """End the process now with ``code``: output flushed, no exit-time handlers of native libraries.
+
+    Not even ``MPI_Finalize``: parallel HDF5 closes its files from it and crashes on the one that failed.
+    """
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
+def _dispatch(own_parser: argparse.ArgumentParser, command: Command, args: argparse.Namespace) -> int:
     try:
         with interruptible():
             if command.check is not None:
                 command.check(own_parser, args)
-            status = command.run(args)
+            try:
+                status = command.run(args)
+            except SystemExit as exc:  # sys.exit inside the work (e.g. a user's function): not a success
+                raise exited(exc, "the command did not finish") from exc
     except FenicsfoamError as error:
+        code = exit_code(error)
+        if not failed_together(code):  # the other ranks wait in a collective call: stop them, say why here
+            print(f"{own_parser.prog}: error on rank {launcher_rank()} only: {shorten(str(error))}", file=sys.stderr,
+                  flush=True)
+            abort(code)
         if launcher_rank() == 0:
-            print(f"{own_parser.prog}: error: {error}", file=sys.stderr)
-        return exit_code(error)
+            print(f"{own_parser.prog}: error: {shorten(str(error))}", file=sys.stderr)
+        return code
     except KeyboardInterrupt as interruption:  # foambase.signals.Interrupted carries its signal's exit status
         if launcher_rank() == 0:
             print(f"{own_parser.prog}: {interruption or 'interrupted'}", file=sys.stderr)
         return getattr(interruption, "exit_code", EXIT_INTERRUPTED)
+    except Exception:  # a bug: its traceback, and under MPI no rank left waiting for this one
+        if not failed_together(EXIT_FAILURE):
+            traceback.print_exc()
+            print(f"{own_parser.prog}: unexpected error on rank {launcher_rank()} only", file=sys.stderr, flush=True)
+            abort(EXIT_FAILURE)
+        raise
     return EXIT_OK if status is None else int(status)
 
 

@@ -13,7 +13,8 @@ code  meaning
 3     a solver did not converge (:class:`NotConvergedError`)
 ====  =================================================================================
 
-The named errors of the packages derive from these categories, e.g. ``fenicsfoam.scene.SceneError`` and
+A :class:`WriteError` (a :class:`ComputationError`) names an output file that could not be written and the
+system's error. The named errors of the packages derive from these categories, e.g. ``fenicsfoam.scene.SceneError`` and
 ``meshes.foam.FoamParameterError`` from :class:`InputError`, ``fenicsfoam.solver.ConvergenceError`` and
 ``homogenization.fft.FFTConvergenceError`` from :class:`NotConvergedError`.
 """
@@ -29,6 +30,7 @@ __all__ = [
     "FenicsfoamError",
     "InputError",
     "NotConvergedError",
+    "WriteError",
     "exit_code",
 ]
 
@@ -61,6 +63,14 @@ class NotConvergedError(FenicsfoamError, RuntimeError):
 
 class ComputationError(FenicsfoamError, RuntimeError):
     """A computation failed for another reason than bad input or non-convergence (exit status 1)."""
+
+
+class WriteError(ComputationError):
+    """An output file could not be written (disk full, file-size limit, quota…) (exit status 1).
+
+    The message names the file and the system's error; the file is absent or its previous version, never
+    half-written.
+    """
 
 
 def exit_code(error: BaseException) -> int:

@@ -15,7 +15,10 @@ When an option is read depends on what it configures:
   ``redundant_*``) — and the viewers and reports read when a solve ends (``*_view*``, ``*_converged_reason``)
   are *deferred* (:func:`deferred`): they can only be checked after a solve, from the real solver's bookkeeping.
 
-Options given on a command line are checked by :func:`unused_command_line_options` once the work is done.
+Options given on a command line are checked before any work (:func:`check_tokens`: a value with no option before it,
+a NaN or infinite value; :func:`check_options`: a value PETSc refuses, or a missing one) and by
+:func:`unused_command_line_options` once the work is done. A NaN or infinite value is refused everywhere: PETSc
+would take ``snes_rtol = nan`` as a tolerance that no comparison meets.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ import ctypes
 import ctypes.util
 import functools
 import logging
+import math
 import re
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
@@ -33,8 +37,8 @@ from foambase.errors import InputError
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["check_options", "command_line_options", "deferred", "error_message", "option_names", "option_used",
-           "unused_command_line_options"]
+__all__ = ["check_options", "check_tokens", "command_line_options", "deferred", "error_message", "option_names",
+           "option_used", "unused_command_line_options"]
 
 #: Options read only when a solver is set up or a solve ends (see the module docstring).
 DEFERRED = re.compile(r"^(mat_mumps_|mat_superlu|mat_strumpack|mat_mkl_|mat_pastix_|mat_cholmod_|mat_umfpack_|"
@@ -119,7 +123,13 @@ def check_options(options: Mapping[str, Any], prefix: str, defaults: Mapping[str
 
     own = set(own)
     db = PETSc.Options()
-    command_line = {name[len(prefix):]: value for name, value in db.getAll().items() if name.startswith(prefix)}
+    command_line = {name[len(prefix):]: "" if value is None else value for name, value in db.getAll().items()
+                    if name.startswith(prefix)}  # a command-line option without a value is a flag: ""
+    for key, value in options.items():
+        if key not in own:
+            _check_finite(f"{where}.{key}", value)
+    for key, value in command_line.items():
+        _check_finite(f"command-line option -{prefix}{key}", value)
     effective = {k: _value(v) for k, v in {**dict(defaults), **dict(options)}.items() if k not in own}
     effective.update(command_line)
     effective = {k: v for k, v in effective.items() if v is not None}
@@ -148,12 +158,17 @@ def check_options(options: Mapping[str, Any], prefix: str, defaults: Mapping[str
     read: set[str] = set()
     snes, code = configure(list(effective))
     if snes is None:  # which option? each one alone, over the defaults (which give the solver types)
-        for key in options:
-            if key in own or key in command_line:
+        for key in [*command_line, *(k for k in options if k not in command_line)]:
+            if key in own:
                 continue
             keys = [k for k in dict(defaults) if k in effective and k != key] + [key]
             single, single_code = configure(keys)
             if single is None:
+                if key in command_line:
+                    given = (f"the value {command_line[key]!r}" if command_line[key] != "" else
+                             "no value (an option that needs one is followed by it)")
+                    raise InputError(f"command-line option -{prefix}{key}: PETSc refuses {given} "
+                                     f"({error_message(single_code)})")
                 hint = (f"; an option without a value is written {key} = \"\"" if options[key] is True else "")
                 raise InputError(f"{where}.{key}: PETSc refuses the value {options[key]!r} "
                                  f"({error_message(single_code)}){hint}")
@@ -170,6 +185,36 @@ def check_options(options: Mapping[str, Any], prefix: str, defaults: Mapping[str
             continue
         raise InputError(f"{where}.{key}: PETSc does not use this option (misspelt, or not an option of this "
                          f"solver: {types}); PETSc's manual pages list the valid ones")
+
+
+def _check_finite(name: str, value: Any) -> None:
+    """Refuse a NaN or infinite number (PETSc would take it as a tolerance that every comparison fails)."""
+    if isinstance(value, bool):
+        return
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        return
+    if not math.isfinite(number):
+        raise InputError(f"{name}: {value!r} is not a finite number; PETSc options take finite values")
+
+
+def check_tokens(tokens: Sequence[str]) -> None:
+    """Command-line PETSc options (after ``--``): each an ``-option`` followed by at most one value.
+
+    A value with no option before it (``scene_snes_rtol 1e-8``, the dash forgotten) would be dropped by PETSc
+    without a word; a NaN or infinite value would be taken. Both are an :class:`InputError` naming the token.
+    """
+    previous = None
+    for token in tokens:
+        if option_names([token]):
+            previous = token
+            continue
+        if previous is None:
+            hint = f" (did you mean -{token}?)" if re.match(r"^[A-Za-z_]", token) else ""
+            raise InputError(f"PETSc options after '--': {token!r} is not an option (options start with '-'){hint}")
+        _check_finite(f"command-line option {previous}", token)
+        previous = None
 
 
 def option_names(tokens: Sequence[str]) -> list[str]:
@@ -192,6 +237,7 @@ def command_line_options(tokens: Sequence[str], prefix: str = "scene_"):
     """
     from petsc4py import PETSc
 
+    check_tokens(tokens)
     db = PETSc.Options()
     if tokens:
         db.insertString(" ".join(tokens))

@@ -153,6 +153,47 @@ def _world():
     return MPI.COMM_WORLD if MPI.COMM_WORLD.Get_size() > 1 else None
 
 
+#: The FFT solver's arrays per voxel (bytes; measured: about 106 for ``pcg``/``rotated``): a floor of what a run needs.
+BYTES_PER_VOXEL = 100
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to a new allocation on this machine (``MemAvailable``), or None if unknown."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as meminfo:
+            for line in meminfo:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def check_size(n_voxels: int, what: str, ranks: int = 1, bytes_per_voxel: int = BYTES_PER_VOXEL) -> None:
+    """:class:`InputError` naming ``what`` if ``n_voxels`` cannot fit in this machine's available memory.
+
+    The need counted is a floor (the solver's arrays, split over ``ranks``), so a refused size never fits.
+    """
+    need = n_voxels * bytes_per_voxel / max(ranks, 1)
+    have = available_memory()
+    if have is not None and need > have:
+        raise InputError(f"{what}: {n_voxels:.4g} voxels need at least {need / 2**30:.3g} GiB per rank "
+                         f"({bytes_per_voxel} bytes per voxel for the FFT solver's arrays), more than the "
+                         f"{have / 2**30:.3g} GiB available on this machine")
+
+
+def check_cells(n_cells: int, resolution: int, what: str) -> None:
+    """:class:`InputError` if a foam of ``n_cells`` Voronoi cells is not resolved by ``resolution``³ voxels.
+
+    A cell must span at least 2 voxels across (``n_cells <= resolution³ / 8``); more cells than that cannot be
+    voxelized (and the Voronoi construction alone would exhaust memory long before).
+    """
+    most = resolution ** 3 // 8
+    if n_cells > most:
+        raise InputError(f"{what}: {n_cells} Voronoi cells in {resolution}³ voxels leave less than 2 voxels across a "
+                         f"cell; valid at this resolution: at most {most} cells (or a finer --resolution)")
+
+
 def _read_image(path: Path, mmap: bool = False) -> np.ndarray:
     """The 0/1 phase image of ``--image``, checked; :class:`InputError` naming the argument.
 
@@ -160,8 +201,27 @@ def _read_image(path: Path, mmap: bool = False) -> np.ndarray:
     """
     import numpy as np
 
-    if not path.is_file():
+    from foambase.files import check_input_file
+
+    if not path.exists():
         raise InputError(f"--image {path}: no such file")
+    check_input_file(path, "--image")  # a FIFO, a device or a directory is named, never opened
+    try:
+        with open(path, "rb") as f:  # the header first: the array's size is checked before anything is allocated
+            version = np.lib.format.read_magic(f)
+            read = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
+            shape, _, dtype = read[version](f)
+            offset = f.tell()
+    except (OSError, ValueError, EOFError, KeyError):
+        shape = None  # not a plain .npy file (e.g. an .npz archive): np.load says what it is below
+    if shape is not None:
+        n_bytes = int(np.prod(shape, dtype=object)) * dtype.itemsize
+        if offset + n_bytes > path.stat().st_size:
+            raise InputError(f"--image {path}: its header announces an array of shape {shape} ({dtype}, "
+                             f"{n_bytes} bytes) but the file holds {path.stat().st_size - offset} bytes of data "
+                             "(truncated or corrupt)")
+        if len(shape) == 3:
+            check_size(int(np.prod(shape, dtype=object)), f"--image {path} (shape {shape})")
     try:
         image = np.load(path, allow_pickle=False, mmap_mode="r" if mmap else None)
     except (OSError, ValueError, EOFError) as exc:
@@ -202,6 +262,10 @@ def _homogenize_check(parser: argparse.ArgumentParser, args: argparse.Namespace)
         need(args.seed >= 0, f"--seed must be an integer >= 0, got {args.seed}")
         need(args.resolution >= 8, f"--resolution must be an integer >= 8, got {args.resolution}")
         _check_foam_grid(args.box, args.resolution, [args.gamma], "--gamma")
+        check_cells(args.cells, args.resolution, f"--cells {args.cells} --resolution {args.resolution}")
+        world = _world()
+        check_size(args.resolution ** 3, f"--resolution {args.resolution}",
+                   1 if world is None else world.size)
     else:
         need(args.stl is None, "--stl writes a foam's surface: it needs --density (not --image)")
         from homogenization.tables import SweepSettings
@@ -431,6 +495,12 @@ def _table_check(parser: argparse.ArgumentParser, args: argparse.Namespace) -> N
         parser.error(f"--gammas must lie in (0, 1], got {bad}")
     if any(s < 0 for s in args.seeds):
         parser.error(f"--seeds must be >= 0, got {args.seeds}")
+    for option in ("--densities", "--gammas", "--seeds"):
+        values = getattr(args, option[2:])
+        repeated = sorted({v for v in values if values.count(v) > 1})
+        if repeated:
+            parser.error(f"{option}: {', '.join(map(str, repeated))} given more than once (a sample would count "
+                         "twice in the mean and standard deviation over seeds); give each value once")
     if args.threads is not None and args.threads < 1:
         parser.error(f"--threads must be >= 1, got {args.threads}")
     for option, key in (("--cells", "n_cells"), ("--resolution", "resolution"), ("--tol", "tol")):
@@ -441,6 +511,11 @@ def _table_check(parser: argparse.ArgumentParser, args: argparse.Namespace) -> N
     if args.maxiter is not None and args.maxiter < 1:
         parser.error(f"--maxiter must be >= 1, got {args.maxiter}")
     _check_foam_grid(args.box, args.resolution, args.gammas, "--gammas")
+    try:
+        check_cells(args.cells, args.resolution, f"--cells {args.cells} --resolution {args.resolution}")
+        check_size(args.resolution ** 3, f"--resolution {args.resolution}")
+    except InputError as exc:
+        parser.error(str(exc))
     args.settings = tables.SweepSettings(n_cells=args.cells, resolution=args.resolution, tol=args.tol, box=args.box,
                                          distance=args.distance, maxiter=args.maxiter,
                                          discretization=args.discretization)

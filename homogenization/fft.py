@@ -552,7 +552,10 @@ def _check_materials(materials, ids) -> tuple[dict[int, np.ndarray], int]:
                          f"(materials given for ids {sorted(available)})")
     raw = {}
     for p in map(int, ids):
-        C = np.asarray(available[p], dtype=float)
+        try:
+            C = np.asarray(available[p], dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"materials[{p}] must be a 6×6 Voigt stiffness of numbers, got {available[p]!r:.80}") from exc
         if C.shape != (6, 6):
             raise InputError(f"materials[{p}] must be a 6×6 Voigt stiffness, got shape {C.shape}")
         if not np.all(np.isfinite(C)):
@@ -922,6 +925,8 @@ def _check_inputs(phases, materials, *, scheme, discretization, box, tol, maxite
     if discretization == "hex8" and scheme != "pcg":
         raise InputError(f"discretization='hex8' (fully integrated trilinear voxels) is solved by scheme='pcg' only, "
                          f"got scheme={scheme!r}")
+    if isinstance(tol, bool) or not isinstance(tol, int | float | np.integer | np.floating):
+        raise InputError(f"tol must be a number, 0 < tol < 1, got {tol!r}")
     if not (np.isfinite(tol) and 0.0 < tol < 1.0):
         raise InputError(f"tol must satisfy 0 < tol < 1, got tol = {tol}")
     maxiter = DEFAULT_MAXITER[scheme] if maxiter is None else maxiter

@@ -235,8 +235,8 @@ def resolution_for_strut(settings: SweepSettings, density: float, gamma: float, 
 
 def grid(densities: Iterable[float] = DENSITIES, gammas: Iterable[float] = GAMMAS,
          seeds: Iterable[int] = SEEDS) -> list[Sample]:
-    """All (density, γ, seed) combinations, in a fixed order."""
-    return sorted(Sample(float(d), float(g), int(s)) for d in densities for g in gammas for s in seeds)
+    """All (density, γ, seed) combinations, each once (a repeated value counts once), in a fixed order."""
+    return sorted({Sample(float(d), float(g), int(s)) for d in densities for g in gammas for s in seeds})
 
 
 def _cache_key(sample: Sample, settings: SweepSettings) -> dict:
@@ -268,10 +268,33 @@ def _failure_record(entry: Path) -> Path:
     return entry.with_name(entry.stem + ".failed.txt")
 
 
+def _check_cached_values(row: dict) -> None:
+    """A cached row's results are finite numbers, its C is a stiffness, and its constants are those of its C.
+
+    Raises ``ValueError`` naming the first column that fails (a hand-edited or corrupted entry).
+    """
+    for name in ("measured_density", "radius", *C_ENTRIES, *ENGINEERING, *TI_FIT, *ISO_FIT):
+        value = row[name]
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+            raise ValueError(f"column {name!r} is {value!r}, not a finite number")
+    C = np.zeros((6, 6))
+    for name in C_ENTRIES:
+        i, j = int(name[1]) - 1, int(name[2]) - 1
+        C[i, j] = C[j, i] = row[name]
+    if np.linalg.eigvalsh(C).min() <= 0.0:
+        raise ValueError("its C is not positive definite (not a stiffness)")
+    expected = engineering_constants(C)
+    for name, value in expected.items():
+        if not math.isclose(row[name], value, rel_tol=1e-9, abs_tol=1e-12):
+            raise ValueError(f"column {name!r} = {row[name]!r} is not the value of its C ({value!r})")
+
+
 def read_cache_entry(path: str | os.PathLike, sample: Sample, settings: SweepSettings) -> dict | None:
     """The row cached at ``path`` for ``sample``, or ``None`` when there is none to use.
 
-    A file that is not JSON, lacks a column, or holds another sample's or setting's inputs is named in a warning and
+    A file that is not JSON, lacks a column, holds another sample's or setting's inputs, or results that cannot be
+    this sample's (a value that is not a finite number, a C that is not positive definite, engineering constants
+    that are not those of its C: a hand-edited or corrupted entry) is named in a warning and
     reported as absent, so that the sweep recomputes (and overwrites) it.
     """
     path = Path(path)
@@ -287,6 +310,7 @@ def read_cache_entry(path: str | os.PathLike, sample: Sample, settings: SweepSet
         found = _cache_key(Sample(row["density"], row["gamma"], row["seed"]), settings_from_row(row))
         if found != _cache_key(sample, settings):
             raise ValueError(f"its inputs {found} are not this sample's")
+        _check_cached_values(row)
     except (OSError, ValueError, TypeError, UnicodeDecodeError) as exc:  # JSONDecodeError is a ValueError
         log.warning("foam table cache entry %s cannot be used (%s); the sample is recomputed", path, exc)
         return None

@@ -58,7 +58,10 @@ class InadmissibleMaterialError(InputError):
 # Representations
 # --------------------------------------------------------------------------------------------------
 def _as_6x6(C: np.ndarray, name: str = "C") -> np.ndarray:
-    C = np.asarray(C, dtype=float)
+    try:
+        C = np.asarray(C, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{name} must be a 6×6 matrix of numbers, got {C!r:.80}") from exc
     if C.shape != (6, 6):
         raise InputError(f"{name} must be a 6×6 matrix, got shape {C.shape}")
     return C

@@ -734,9 +734,11 @@ class VoronoiFoam:
         import meshio
         from skimage.measure import marching_cubes
 
+        from foambase.files import check_output_file
+
         shape = self.grid_shape(N)
         h = float(self.box[0] / shape[0])
-        path = Path(path)
+        path = check_output_file(path, "to_stl path")  # a directory, a missing folder: InputError, before any work
         c = [(np.arange(-1, n + 1) + 0.5) * h for n in shape]
         x = np.stack(np.meshgrid(*c, indexing="ij"), axis=-1).reshape(-1, 3)
         d = self.distance(x, upper=self.radius + 2.0 * h)

@@ -43,8 +43,9 @@ def physical_groups(path: str | Path) -> PhysicalGroups:
     Raises
     ------
     foambase.errors.InputError
-        The file is not a readable ``.msh`` file, has no tetrahedra, or has tetrahedra outside every physical
-        volume group.
+        The file is not a readable ``.msh`` file, has no tetrahedra, has tetrahedra outside every physical
+        volume group, or triangles of a physical surface group that are faces of no tetrahedron (a volume left out
+        of the physical volume groups: gmsh did not write its tetrahedra; reading such a file would crash).
 
     """
     path = Path(path)
@@ -57,11 +58,17 @@ def physical_groups(path: str | Path) -> PhysicalGroups:
     tags = {"cells": set(), "facets": set()}
     n_tetra = 0
     physical = msh.cell_data.get("gmsh:physical", [None] * len(msh.cells))
+    faces, triangles = [], []  # corner nodes, sorted: the tetrahedra's faces and the grouped triangles
     for block, data in zip(msh.cells, physical):
         kind = "cells" if block.type in _VOLUME_CELLS else "facets" if block.type in _FACET_CELLS else None
         if kind is None:
             continue
         n_tetra += len(block.data) if kind == "cells" else 0
+        corners = np.asarray(block.data)[:, :4 if kind == "cells" else 3]
+        if kind == "cells":
+            faces += [np.sort(corners[:, [i for i in range(4) if i != drop]], axis=1) for drop in range(4)]
+        elif data is not None:
+            triangles.append(np.sort(corners[np.asarray(data) > 0], axis=1))
         if data is None or np.any(np.asarray(data) <= 0):
             if kind == "cells":
                 raise InputError(f"mesh file {path}: some tetrahedra are in no physical volume group (every cell "
@@ -70,11 +77,27 @@ def physical_groups(path: str | Path) -> PhysicalGroups:
         tags[kind].update(int(t) for t in np.unique(data))
     if n_tetra == 0:
         raise InputError(f"mesh file {path}: no tetrahedra (a 3-D tetrahedral mesh is required)")
+    orphans = _orphan_triangles(faces, triangles)
+    if orphans:
+        raise InputError(f"mesh file {path}: {orphans} triangle(s) of the physical surface groups are faces of no "
+                         "tetrahedron: a volume is missing from the physical volume groups (gmsh writes only the "
+                         "elements of physical groups, so that volume's tetrahedra were left out); add it to a "
+                         "physical volume group")
     names = {"cells": {}, "facets": {}}
     for name, (tag, dim) in msh.field_data.items():
         if dim in (2, 3):
             names["cells" if dim == 3 else "facets"][name] = int(tag)
     return PhysicalGroups(frozenset(tags["cells"]), frozenset(tags["facets"]), names["cells"], names["facets"])
+
+
+def _orphan_triangles(faces: list[np.ndarray], triangles: list[np.ndarray]) -> int:
+    """How many of the ``triangles`` (sorted corner nodes) are none of the tetrahedra's ``faces``."""
+    if not triangles or not faces:
+        return sum(len(t) for t in triangles)
+    faces, triangles = np.concatenate(faces).astype(np.int64), np.concatenate(triangles).astype(np.int64)
+    row = np.dtype((np.void, 3 * 8))
+    return int(np.count_nonzero(~np.isin(np.ascontiguousarray(triangles).view(row).ravel(),
+                                         np.ascontiguousarray(faces).view(row).ravel())))
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -8,9 +8,14 @@ the paper's own SOFA simulation, `PAPER_FOAM`, mapped as docs/conventions.md des
 height and twist of the centre at rest, or the step that failed, the load factor reached and why; Δheight and
 Δangle of the centre from rest to middle and top; Newton iterations per step; wall and CPU time.
 
-Run (serial, ≈ 1–4 min per row on a shared 2-core machine):
+The arm end r ≥ 45 mm is clamped (`tripod_twist`'s region clamp). ``--shipped`` runs the shipped as-built scene
+`demos/scenes/tripod_case_b.toml` instead (the tutorial's box clamp, 20 rest increments, through
+`studies/tripod_as_built.py`), with its own foam (``table``) or the paper's (``paper``, the plate made a
+``transverse_isotropic`` region of the same mass density).
+
+Run (serial, ≈ 0.2–5 CPU-min per row):
 `python studies/tripod_models.py [--models corotational corotational_sofa bonet_burton] [--foams table paper]
-[--h 0.0046]`.
+[--h 0.0052] [--rest 85.74] [--shipped]`.
 """
 
 from __future__ import annotations
@@ -44,8 +49,13 @@ def main() -> int:
     parser.add_argument("--foams", nargs="+", default=["table", "paper"], choices=["table", "paper"])
     parser.add_argument("--h", type=float, default=PAPER_H, help="mesh size (m)")
     parser.add_argument("--rest", type=float, default=REAL_REST_DEG, help="horn angle at rest (deg)")
+    parser.add_argument("--shipped", action="store_true",
+                        help="run the shipped as-built scene tripod_case_b.toml (tutorial's box clamp, "
+                             "studies/tripod_as_built.py) instead of tripod_twist's run_case")
     args = parser.parse_args()
     comm = MPI.COMM_WORLD
+    if args.shipped:
+        return shipped(args, comm)
     table = scene_materials()
     foams = {"table": table, "paper": {**table, "plate": TransverseIsotropic(**PAPER_FOAM, rho=table["plate"].rho)}}
     rows = []
@@ -65,6 +75,34 @@ def main() -> int:
         for who, v in TABLE_I["B"].items():
             print(f"{'Table I case B, paper ' + who:36s} {'':25s} Δh {v['dh'][0]:6.2f} {v['dh'][1]:6.2f}  "
                   f"Δa {v['da'][0]:6.2f} {v['da'][1]:6.2f}")
+    return 0
+
+
+def shipped(args, comm) -> int:
+    """The shipped as-built case B scene, each model, its foam (``table``) or the paper's (``paper``)."""
+    import tripod_as_built
+
+    scene_dict = tripod_as_built.scene_dict
+    for foam in args.foams:
+        for model in args.models:
+            def edited(name, h, model_, layout=None, clamp="box", foam=foam):
+                data = scene_dict(name, h, model_, layout, clamp)
+                if foam == "paper":
+                    plate = data["regions"]["plate"]
+                    rho = plate["rho_solid"] * plate["density"]
+                    data["regions"]["plate"] = {"tags": plate["tags"], "material": "transverse_isotropic",
+                                                **PAPER_FOAM, "rho": rho}
+                return data
+            tripod_as_built.scene_dict = edited
+            cpu = time.process_time()
+            row = tripod_as_built.run("tripod_case_b", args.h, model, None, comm, "box")
+            cpu = comm.allreduce(time.process_time() - cpu, op=MPI.SUM)
+            if comm.rank == 0:
+                print(f"shipped case B, {model}, {foam} foam, h {args.h * 1e3:g} mm: "
+                      + ", ".join(f"{k} {v:.2f}" if isinstance(v, float) else f"{k} {v}" for k, v in row.items()
+                                  if k not in ("scene", "layout", "h_mm", "model"))
+                      + f", {cpu:.1f} s CPU", flush=True)
+    tripod_as_built.scene_dict = scene_dict
     return 0
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import stat
 import subprocess
@@ -130,6 +131,61 @@ def test_unsafe_step_labels_are_refused_naming_the_key(labels, index, message):
         parse_scene(scene)
 
 
+def _beam(**extra):
+    return {"geometry": {"builder": "beam"}, "regions": {"beam": {"tags": "beam", "material": "isotropic",
+                                                                  "E": 1e6, "nu": 0.3}},
+            "loads": {"clamp": "clamped"}, "steps": [{"label": "a"}], **extra}
+
+
+def _ti_beam(orientation):
+    scene = _beam(orientation=orientation)
+    scene["regions"]["beam"] = {"tags": "beam", "material": "transverse_isotropic", "E_t": 1e6, "E_l": 2e6,
+                                "nu_t": 0.3, "nu_tl": 0.3, "G_l": 3e5}
+    return scene
+
+
+@pytest.mark.parametrize("scene, message", [
+    (lambda: _beam(loads={"clamp": "clamped", "force": {"clamp": {"group": "tip", "force": [0, 0, -1.0]}}}),
+     r"^loads\.force\.clamp: the name 'clamp' is reserved"),
+    (lambda: _beam(loads={"clamp": "clamped", "pressure": {"servo1": {"group": "tip", "pressure": 1.0}}}),
+     r"^loads\.pressure\.servo1: the name 'servo1' is reserved"),
+    (lambda: _ti_beam({"kind": "per_tag", "directions": {"beam": [1.0, 0, 0]}, "default": [0, 0, 1.0]}),
+     r"^orientation\.default: every cell tag of the mesh \(\[1\]\) has a direction"),
+    (lambda: _ti_beam({"kind": "per_tag", "directions": {"\u00b2": [1.0, 0, 0]}}),
+     r"^orientation\.directions\.\u00b2: unknown region name '\u00b2'"),
+])
+def test_reserved_names_unused_defaults_and_odd_tags_are_refused(scene, message):
+    with pytest.raises(SceneError, match=message):
+        parse_scene(scene())
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda s: s["steps"][0].update(lable=s["steps"][0].pop("label")),
+     r"^steps\[0\]\.lable: unknown key; did you mean 'label'\? \(steps\[0\]\.label is required\)"),
+    (lambda s: s["regions"]["beam"].update(e=s["regions"]["beam"].pop("E")),
+     r"^regions\.beam\.e: unknown key; did you mean 'E'\?"),
+    (lambda s: s["geometry"].update(heigth=0.01),
+     r"^geometry\.heigth: unknown key; did you mean 'height'\? valid keys here"),
+    (lambda s: s["regions"]["beam"].update(material="foam", density=0.2, gama=1.0, E_solid=1e6, nu_solid=0.3,
+                                           E=None) or s["regions"]["beam"].pop("E") and None,
+     r"^regions\.beam\.gama: unknown key; did you mean 'gamma'\?"),
+])
+def test_a_misspelt_key_is_named_with_a_suggestion(edit, message):
+    scene = _beam()
+    scene["regions"]["beam"]["nu"] = 0.3
+    edit(scene)
+    with pytest.raises(SceneError, match=message):
+        parse_scene(scene)
+
+
+def test_a_key_of_the_schema_is_never_taken_for_a_misspelling():
+    """nu_tl is a key of its own: a transversely isotropic region without nu_t is told nu_t is missing."""
+    scene = _ti_beam({"kind": "uniform", "direction": [1.0, 0.0, 0.0]})
+    del scene["regions"]["beam"]["nu_t"]
+    with pytest.raises(SceneError, match=r"^regions\.beam\.nu_t: missing value \(required\)"):
+        parse_scene(scene)
+
+
 def test_safe_labels_are_accepted():
     scene = {"geometry": {"builder": "beam"}, "regions": {"beam": {"tags": "beam", "material": "isotropic",
                                                                    "E": 1e6, "nu": 0.3}},
@@ -171,6 +227,29 @@ ISO = 'material = "isotropic"\nE = 1e6\nnu = 0.3\nrho = 1000.0\n'
     (lambda s: s.replace(ISO, TI_BAD.replace("nu_tl = 0.9", "nu_tl = 0.3")).replace(
         "[loads]", '[orientation]\nkind = "callable"\nfunction = "math:pi"\n[loads]'),
      "orientation.function: 'math:pi' is a float, not a function"),
+    (lambda s: s.replace(ISO, TI_BAD.replace("nu_tl = 0.9", "nu_tl = 0.3")).replace(
+        "[loads]", '[orientation]\nkind = "callable"\nfunction = "sys:exit"\n[loads]'),
+     "orientation.function: sys:exit(x) raised SystemExit"),
+    (lambda s: s.replace(ISO, TI_BAD.replace("nu_tl = 0.9", "nu_tl = 0.3")).replace(
+        "[loads]", '[orientation]\nkind = "callable"\nfunction = "numpy.fft:fft"\n[loads]'),
+     "orientation.function: numpy.fft:fft(x) returned complex values"),
+    (lambda s: s.replace(ISO, FOAM.replace("density = 0.18", 'density = {function = "numpy.fft:fft"}')).replace(
+        "[loads]", '[orientation]\nkind = "uniform"\ndirection = [1.0, 0.0, 0.0]\n[loads]'),
+     "regions.beam.density: the function returned complex values"),
+    (lambda s: s.replace(ISO, FOAM.replace("density = 0.18", 'density = {function = "sys:exit"}')).replace(
+        "[loads]", '[orientation]\nkind = "uniform"\ndirection = [1.0, 0.0, 0.0]\n[loads]'),
+     "regions.beam.density: sys:exit(x) raised SystemExit"),
+    (lambda s: s.replace("increments = 1", "increments = 9223372036854775807"),
+     "steps[0].increments: 9223372036854775807 is out of range; valid: an integer <= 10000"),
+    (lambda s: s.replace('name = "hostile"', f'name = "{"n" * 10000}"'),
+     "name: expected a printable name of at most 200 characters"),
+    (lambda s: s.replace(ISO, FOAM.replace("E_solid = 1e6", 'E_solid = {calibration = "/dev/zero"}')).replace(
+        "[loads]", '[orientation]\nkind = "uniform"\ndirection = [1.0, 0.0, 0.0]\n[loads]'),
+     "regions.beam.E_solid.calibration: cannot read calibration file /dev/zero: is a character device"),
+    (lambda s: s.replace("[loads]", '[fem.petsc]\nsnes_rtol = nan\n[loads]'),
+     "fem.petsc.snes_rtol: nan is not a finite number"),
+    (lambda s: s.replace("[loads]", '[fem.petsc]\nsnes_atol = -inf\n[loads]'),
+     "fem.petsc.snes_atol: -inf is not a finite number"),
     (lambda s: s.replace("[loads]", '[fem.petsc]\nsnes_rtol = "abc"\n[loads]'),
      "fem.petsc.snes_rtol: PETSc refuses the value 'abc'"),
     (lambda s: s.replace("[loads]", "[fem.petsc]\nsnes_rtoll = 1e-8\n[loads]"),
@@ -191,6 +270,42 @@ def test_bad_scenes_exit_2_naming_the_key(work, capsys, edit, message):
     assert status == 2, err
     assert message in err and "Traceback" not in err
     assert snapshot(work) == before  # not even --out is created
+
+
+def test_sys_exit_inside_a_command_is_a_failure_not_a_success(capsys):
+    """A ``sys.exit(0)`` reached inside a command's work (e.g. from a user's function) must not end with status 0."""
+    from foambase import cli
+
+    command = cli.Command("quits", "calls sys.exit(0) in its work", lambda parser: None, lambda args: sys.exit(0))
+    status, err = status_of([lambda argv: cli.main_single(command, "quits", argv)], capsys)
+    assert status == 1 and "quits: error: the command did not finish: sys.exit(0) was called" in err
+
+
+@pytest.mark.parametrize("kind, message", [
+    ("fifo", "is a named pipe (FIFO), not a regular file"),
+    ("/dev/zero", "is a character device (such as /dev/zero), not a regular file"),
+    ("directory", "is a directory, not a file"),
+    ("missing", "does not exist"),
+])
+def test_a_scene_that_is_not_a_regular_file_is_named_as_what_it_is(work, capsys, kind, message):
+    """Only os.stat is called: a FIFO would block a reader forever, /dev/zero would fill the memory."""
+    scene = {"fifo": work / "scene.toml", "/dev/zero": Path("/dev/zero"), "directory": work / "scenes",
+             "missing": work / "missing.toml"}[kind]
+    if kind == "fifo":
+        os.mkfifo(scene)
+    elif kind == "directory":
+        scene.mkdir()
+    status, err = status_of([fenicsfoam_main, "run", str(scene), "--out", str(work / "out")], capsys)
+    assert status == 2 and f"error: scene {scene}: {message}" in err, err
+
+
+def test_an_output_name_longer_than_the_file_system_allows_is_refused_first(work, capsys):
+    (work / "scene.toml").write_text(scene_text())
+    before = snapshot(work)
+    status, err = status_of([fenicsfoam_main, "run", str(work / "scene.toml"), "--out", str(work / ("o" * 300))],
+                            capsys)
+    assert status == 2 and "has 300 bytes, more than the 255 a file name may have here" in err, err
+    assert snapshot(work) == before
 
 
 def test_a_binary_scene_file_exits_2(work, capsys):
@@ -300,6 +415,26 @@ def test_a_used_setup_option_passes_and_unknown_command_line_options_warn(work, 
     assert "WARNING" in err and "-scene_snes_rtoll -snes_max_it" in err and "-scene_snes_rtol " not in err
     from petsc4py import PETSc
     assert not [k for k in PETSc.Options().getAll() if "snes" in k]  # the run's options are gone with it
+
+
+@pytest.mark.parametrize("options, message", [
+    (["-scene_snes_rtol", "nan"], "command-line option -scene_snes_rtol: 'nan' is not a finite number"),
+    (["-scene_snes_atol", "inf"], "command-line option -scene_snes_atol: 'inf' is not a finite number"),
+    (["scene_snes_rtol", "1e-8"], "PETSc options after '--': 'scene_snes_rtol' is not an option (options start "
+                                  "with '-') (did you mean -scene_snes_rtol?)"),
+    (["-scene_snes_rtol", "1e-8", "1e-9"], "PETSc options after '--': '1e-9' is not an option"),
+    (["-scene_ksp_type"], "command-line option -scene_ksp_type: PETSc refuses no value"),
+    (["-scene_ksp_type", "nosuchtype"], "command-line option -scene_ksp_type: PETSc refuses the value 'nosuchtype'"),
+])
+def test_bad_command_line_petsc_options_exit_2_naming_them(work, capsys, options, message):
+    (work / "scene.toml").write_text(scene_text())
+    before = snapshot(work)
+    status, err = status_of([fenicsfoam_main, "run", str(work / "scene.toml"), "--out", str(work / "out"), "--",
+                             *options], capsys)
+    assert status == 2 and message in err and "Traceback" not in err, err
+    assert snapshot(work) == before
+    from petsc4py import PETSc
+    assert not [k for k in PETSc.Options().getAll() if k.startswith("scene_")]
 
 
 # --------------------------------------------------------------------------------------------------
@@ -435,6 +570,10 @@ def images(work):
     x = (np.arange(8) + 0.5) / 8 - 0.5
     X, Y, Z = np.meshgrid(x, x, x, indexing="ij")
     np.save(work / "porous.npy", ~((X**2 + Y**2 + Z**2 < 0.3**2) | (Y**2 + Z**2 < 0.15**2)))
+    header = (work / "void.npy").read_bytes().replace(b"(8, 8, 8)", b"(4096, 4096, 4096)")
+    (work / "huge.npy").write_bytes(header)  # a header announcing 4096³ voxels over 512 bytes of data
+    os.mkfifo(work / "fifo.npy")
+    (work / "folder.npy").mkdir()
     return work
 
 
@@ -456,6 +595,15 @@ FOAM_ARGS = ["--density", "0.3", "--cells", "8", "--resolution", "16", "--thread
                                           "subnormal number"),
     ([*FOAM_ARGS, "--E-solid", "inf"], "--E-solid must be > 0 and finite, got inf"),
     (["--image", "archive.npz"], "--image archive.npz: an .npz archive, not an .npy array"),
+    (["--image", "huge.npy"], "--image huge.npy: its header announces an array of shape (4096, 4096, 4096)"),
+    (["--image", "fifo.npy"], "--image fifo.npy: is a named pipe (FIFO), not a regular file"),
+    (["--image", "folder.npy"], "--image folder.npy: is a directory, not a file"),
+    (["--image", "/dev/zero"], "--image /dev/zero: is a character device"),
+    (["--image", "missing.npy"], "--image missing.npy: no such file"),
+    ([*FOAM_ARGS, "--resolution", "100000"], "--resolution 100000: 1e+15 voxels need at least"),
+    ([*FOAM_ARGS, "--cells", "100000000"], "--cells 100000000 --resolution 16: 100000000 Voronoi cells in 16³ "
+                                           "voxels leave less than 2 voxels across a cell; valid at this "
+                                           "resolution: at most 512 cells"),
     (["--image", "empty.npy"], "--image empty.npy: expected a non-empty 3-D array"),
     (["--image", "void.npy"], "--image void.npy: every voxel is void"),
     (["--image", "victim.txt"], "--image victim.txt: cannot read a .npy array"),
@@ -534,6 +682,10 @@ def test_homogenize_writes_the_foam_surface(images, monkeypatch):
     (["--out", "t", "--cells", "1"], "--cells: n_cells must be an integer >= 2, got 1"),
     (["--out", "t", "--resolution", "4"], "--resolution: resolution must be an integer >= 8 (cubic voxels"),
     (["--out", "t", "--densities", "nan"], "--densities must lie in (0, 1)"),
+    (["--out", "t", "--densities", "0.25", "0.25", "--seeds", "0"], "--densities: 0.25 given more than once"),
+    (["--out", "t", "--seeds", "0", "1", "0"], "--seeds: 0 given more than once"),
+    (["--out", "t", "--resolution", "100000"], "--resolution 100000: 1e+15 voxels need at least"),
+    (["--out", "t", "--cells", "100000000"], "--cells 100000000 --resolution 48: 100000000 Voronoi cells"),
 ])
 def test_table_refuses_bad_arguments_naming_them(work, capsys, monkeypatch, argv, message):
     monkeypatch.chdir(work)
@@ -541,3 +693,285 @@ def test_table_refuses_bad_arguments_naming_them(work, capsys, monkeypatch, argv
     status, err = status_of([fenicsfoam_main, "table", *argv], capsys)
     assert status == 2 and message in err, err
     assert snapshot(work) == before
+
+
+# --------------------------------------------------------------------------------------------------
+# One run per output folder: a lock, refused or waited for
+# --------------------------------------------------------------------------------------------------
+def hold_lock(out: Path) -> int:
+    """Lock ``out`` as a running ``fenicsfoam run`` does (flock on the directory); the descriptor to close."""
+    import fcntl
+
+    fd = os.open(out, os.O_RDONLY | os.O_DIRECTORY)
+    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    return fd
+
+
+def another_run_in(out: Path) -> dict[str, tuple]:
+    """``out`` as a run that is writing leaves it: an incomplete summary and its temporary XDMF folder."""
+    out.mkdir()
+    (out / "summary.json").write_text(json.dumps({"status": "incomplete", "scene": {}, "steps": [],
+                                                  "files": ["summary.json"]}))
+    (out / ".solution.running").mkdir()
+    (out / ".solution.running" / "solution.h5").write_text("the other run's data")
+    return snapshot(out)
+
+
+def test_a_second_run_into_a_locked_folder_is_refused_and_touches_nothing(work, capsys):
+    out = work / "out"
+    before = another_run_in(out)
+    (work / "scene.toml").write_text(scene_text())
+    fd = hold_lock(out)
+    try:
+        status, err = status_of([fenicsfoam_main, "run", str(work / "scene.toml"), "--out", str(out)], capsys)
+    finally:
+        os.close(fd)
+    assert status == 2 and f"--out {out}: another run is writing into this folder" in err, err
+    assert snapshot(out) == before  # the other run's temporary folder survives
+
+
+def test_a_run_with_wait_waits_for_the_lock_then_runs(work):
+    out = work / "out"
+    another_run_in(out)
+    (work / "scene.toml").write_text(scene_text(outputs="[outputs]\nxdmf = false\npng = false\n"))
+    fd = hold_lock(out)
+    process = spawn([*command("fenicsfoam"), "run", "scene.toml", "--out", "out", "--wait"], work)
+    try:
+        time.sleep(4.0)  # long enough to build the scene and reach the lock
+        assert process.poll() is None and (out / ".solution.running").exists()
+        assert json.loads((out / "summary.json").read_text())["status"] == "incomplete"
+        os.close(fd)
+        fd = None
+        _, err = process.communicate(timeout=TIMEOUT)
+    finally:
+        if fd is not None:
+            os.close(fd)
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.communicate()
+    assert process.returncode == 0, err
+    assert json.loads((out / "summary.json").read_text())["status"] == "complete"
+
+
+# --------------------------------------------------------------------------------------------------
+# Write faults: the file and the system's error named, status "failed", no half-written file
+# --------------------------------------------------------------------------------------------------
+LIMITED = """import resource, sys
+from mpi4py import MPI  # MPI starts before the limit (it writes its own session files)
+limit = int(sys.argv[1])
+resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+from fenicsfoam.cli import main
+sys.exit(main(sys.argv[2:]))
+"""
+
+
+@pytest.mark.parametrize("limit, victim, status", [
+    (20_000, "solution.h5", "failed"),
+    pytest.param(60_000, "first.png", "failed", marks=pytest.mark.slow),
+    pytest.param(1_000, "summary.json", None, marks=pytest.mark.slow),
+], ids=["hdf5", "png", "summary"])
+def test_a_write_fault_fails_the_run_naming_the_file_and_leaves_no_partial_file(work, limit, victim, status):
+    (work / "limited.py").write_text(LIMITED)
+    (work / "scene.toml").write_text(scene_text("first", "second"))
+    result = run([sys.executable, "limited.py", str(limit), "run", "scene.toml", "--out", "out"], work)
+    out = work / "out"
+    assert result.returncode == 1, result.stderr
+    assert f"fenicsfoam run: error: cannot write out/{victim}: " in result.stderr
+    assert "File too large (EFBIG)" in result.stderr and "Traceback" not in result.stderr
+    assert not (out / victim).exists() or victim == "summary.json"
+    assert not [p.name for p in out.iterdir() if p.name.startswith(".")]  # no temporaries
+    if status is not None:
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["status"] == status and f"cannot write out/{victim}" in summary["error"]
+        assert sorted(summary["files"]) == outputs_of(out)
+    else:
+        assert not (out / "summary.json").exists()
+
+
+def test_an_atomic_write_that_fails_names_the_file_and_keeps_the_previous_version(tmp_path):
+    import errno
+
+    from foambase.errors import WriteError
+    from foambase.files import atomic_open, write_json_atomic
+
+    target = tmp_path / "calibration.json"
+    write_json_atomic(target, {"E_solid": 1.0})
+    with pytest.raises(WriteError, match=rf"^cannot write {target}: File too large \(EFBIG\)"):
+        with atomic_open(target) as f:
+            f.write('{"E_solid": 2.0')
+            raise OSError(errno.EFBIG, "File too large")  # as a write beyond the file-size limit fails
+    assert json.loads(target.read_text()) == {"E_solid": 1.0}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["calibration.json"]
+
+
+LIMITED_HOMOGENIZE = LIMITED.replace("from fenicsfoam.cli import main", "from homogenization.cli import main")
+
+
+def test_homogenize_reports_a_write_fault_on_its_json(images):
+    """The JSON written beyond a 64-byte file-size limit (set in the subprocess, after MPI has started)."""
+    (images / "limited.py").write_text(LIMITED_HOMOGENIZE)
+    result = run([sys.executable, "limited.py", "64", "--image", "porous.npy", "--out", "r.json"], images)
+    assert result.returncode == 1, result.stderr
+    assert "homogenize: error: cannot write r.json: File too large (EFBIG)" in result.stderr
+    assert "Traceback" not in result.stderr and not (images / "r.json").exists()
+    assert not [p.name for p in images.iterdir() if p.name.startswith(".")]
+
+
+def test_a_grid_counts_a_repeated_value_once():
+    from homogenization import tables
+
+    assert tables.grid((0.25, 0.25), (1.0,), (0, 0)) == [tables.Sample(0.25, 1.0, 0)]
+
+
+@pytest.fixture
+def cached_row(tmp_path):
+    """A cache entry as the sweep writes one, for a sample whose C is a (slightly anisotropic) known stiffness."""
+    from homogenization import tables
+    from homogenization.tensors import (
+        closest_isotropic,
+        closest_transverse_isotropic,
+        engineering_constants,
+        isotropic_voigt,
+    )
+
+    settings = tables.SweepSettings(n_cells=3, resolution=16, tol=1e-5)
+    sample = tables.Sample(0.3, 1.0, 1)
+    C = isotropic_voigt(0.02, 0.3)
+    C[0, 0] *= 1.1
+    row = {"density": sample.density, "gamma": sample.gamma, "seed": sample.seed, "distance": settings.distance,
+           "box": settings.box, "n_cells": settings.n_cells, "resolution": settings.resolution, "tol": settings.tol,
+           "measured_density": 0.3, "radius": 0.05, **engineering_constants(C)}
+    row.update({name: float(C[int(name[1]) - 1, int(name[2]) - 1]) for name in tables.C_ENTRIES})
+    ti = closest_transverse_isotropic(C, axis=(1.0, 0.0, 0.0))
+    row.update(ti_E_t=ti.E_t, ti_E_l=ti.E_l, ti_nu_t=ti.nu_t, ti_nu_tl=ti.nu_tl, ti_G_l=ti.G_l, ti_error=ti.error)
+    iso = closest_isotropic(C)
+    row.update(iso_E=iso.E, iso_nu=iso.nu, iso_error=iso.error, iterations=10, wall_s=1.0, version="test")
+    entry = tmp_path / tables.cache_name(sample, settings)
+    entry.write_text(json.dumps(row))
+    return entry, sample, settings
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda row: row.update(E1=2 * row["E1"]), "column 'E1' = .* is not the value of its C"),
+    (lambda row: row.update(E1=float("nan")), "column 'E1' is nan, not a finite number"),
+    (lambda row: row.update(E1="abc"), "column 'E1' is 'abc', not a finite number"),
+    (lambda row: row.update(C11=-row["C11"]), "its C is not positive definite"),
+])
+def test_a_hand_edited_cache_entry_is_named_and_not_used(cached_row, tmp_path, caplog, edit, message):
+    import logging
+    import re
+
+    from homogenization import tables
+
+    entry, sample, settings = cached_row
+    row = json.loads(entry.read_text())
+    assert tables.read_cache_entry(entry, sample, settings) == row  # the entry as the sweep wrote it is used
+    edit(row)
+    edited = tmp_path / entry.name
+    edited.write_text(json.dumps(row))
+    with caplog.at_level(logging.WARNING, logger="homogenization.tables"):
+        assert tables.read_cache_entry(edited, sample, settings) is None
+    assert re.search(message, caplog.text) and "recomputed" in caplog.text, caplog.text
+
+
+def test_a_mesh_in_millimetres_is_refused_naming_metres_not_a_material_instability():
+    from fenicsfoam.scene import run_scene
+
+    scene = {"name": "mm", "geometry": {"builder": "finger", "h": 3.0, "length": 120.0, "width": 20.0,
+                                        "height": 6.0, "chamber": False},
+             "fem": {"model": "linear", "degree": 1},
+             "regions": {"finger": {"tags": "finger", "material": "isotropic", "E": 1e6, "nu": 0.3, "rho": 1000.0}},
+             "loads": {"gravity": [0.0, 0.0, -9.81], "clamp": "base"}, "steps": [{"label": "g"}]}
+    with pytest.raises(SceneError, match=r"^geometry: the mesh is 120 m across, more than the 10 m a robot may be: "
+                                         r"fenicsfoam works in metres .* scaled by 0\.001"):
+        run_scene(parse_scene(scene))
+
+
+@pytest.mark.parametrize("scene, message", [
+    (lambda: _beam(loads={"clamp": "clamped", "pressure": {"p": {"group": "beam", "pressure": 1.0}}}),
+     r"^loads\.pressure\.p\.group: unknown facet group 'beam': it is a volume group \(a cell region\) of the "
+     r"mesh, and a surface is needed here; facet groups: clamped, tip"),
+    (lambda: _ti_beam({"kind": "uniform", "direction": [0.0, 0.0, 0.0]}),
+     r"^orientation\.direction: a direction must be a non-zero vector, got \[0\.0, 0\.0, 0\.0\]"),
+    (lambda: _ti_beam({"kind": "per_tag", "directions": {"beam": [0, 0, 0]}}),
+     r"^orientation\.directions\.beam: a direction must be a non-zero vector"),
+])
+def test_a_volume_group_for_a_pressure_and_a_zero_direction_are_named(scene, message):
+    with pytest.raises(SceneError, match=message):
+        parse_scene(scene())
+
+
+def test_a_gmsh_volume_left_out_of_the_physical_groups_is_refused_before_meshing(tmp_path):
+    """Two boxes, one in a physical volume, a face of the other in a physical surface: gmsh writes that face's
+    triangles but not its box's tetrahedra; reading such a file crashed PETSc (SEGV)."""
+    import gmsh
+
+    from meshes.msh import physical_groups
+
+    path = tmp_path / "robot.msh"
+    gmsh.initialize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        kept = gmsh.model.occ.addBox(0, 0, 0, 0.02, 0.02, 0.02)
+        left_out = gmsh.model.occ.addBox(0.02, 0, 0, 0.02, 0.02, 0.02)
+        gmsh.model.occ.fragment([(3, kept)], [(3, left_out)])
+        gmsh.model.occ.synchronize()
+        gmsh.model.addPhysicalGroup(3, [kept], 1)
+        far = max(gmsh.model.getBoundary([(3, left_out)], oriented=False),
+                  key=lambda face: gmsh.model.occ.getCenterOfMass(*face)[0])  # the face at x = 0.04
+        gmsh.model.addPhysicalGroup(2, [far[1]], 10)
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 0.01)
+        gmsh.model.mesh.generate(3)
+        gmsh.write(str(path))
+    finally:
+        gmsh.finalize()
+    with pytest.raises(InputError, match=r"triangle\(s\) of the physical surface groups are faces of no "
+                                         r"tetrahedron: a volume is missing from the physical volume groups"):
+        physical_groups(path)
+    scene = {"geometry": {"builder": "file", "path": str(path)},
+             "regions": {"kept": {"tags": 1, "material": "isotropic", "E": 1e6, "nu": 0.3}},
+             "loads": {"clamp": 10}, "steps": [{"label": "a"}]}
+    with pytest.raises(SceneError, match=r"^geometry\.path: mesh file .*faces of no tetrahedron"):
+        parse_scene(scene)
+
+
+def _api_calls(tmp_path):
+    from fenicsfoam.io import read_solution
+    from fenicsfoam.material import foam_material
+    from fenicsfoam.scene import load_scene
+    from homogenization.fft import homogenize_fft
+    from homogenization.tensors import engineering_constants, isotropic_voigt
+    from meshes.foam import VoronoiFoam
+
+    solid = np.ones((8, 8, 8), dtype=np.int8)
+    materials = [np.zeros((6, 6)), isotropic_voigt(1.0, 0.3)]
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "solution.npz").write_bytes(b"not an archive" * 8)
+    return {
+        "homogenize_fft tol": (lambda: homogenize_fft(solid, materials, tol="1e-4"), "tol must be a number"),
+        "homogenize_fft materials": (lambda: homogenize_fft(solid, "ab"), "materials[1] must be a 6×6 Voigt"),
+        "foam_material": (lambda: foam_material("0.18", 1.0, 12e6, 0.3), "density must be a number, got str"),
+        "to_stl": (lambda: VoronoiFoam(4, 0.3, seed=0).to_stl(".", 16), "to_stl path .: is a directory"),
+        "load_scene": (lambda: load_scene(42), "scene: expected a TOML file's path or a dict, got int 42"),
+        "parse_scene": (lambda: parse_scene([1, 2]), "scene: expected a table (a dict, as tomllib reads one)"),
+        "read_solution": (lambda: read_solution(tmp_path / "run"), "not a solution archive written by a scene run"),
+        "engineering_constants": (lambda: engineering_constants("abc"), "C must be a 6×6 matrix of numbers"),
+    }
+
+
+@pytest.mark.parametrize("call", ["homogenize_fft tol", "homogenize_fft materials", "foam_material", "to_stl",
+                                  "load_scene", "parse_scene", "read_solution", "engineering_constants"])
+def test_public_api_calls_with_bad_arguments_raise_the_family(tmp_path, call):
+    from foambase.errors import FenicsfoamError
+
+    function, message = _api_calls(tmp_path)[call]
+    with pytest.raises(FenicsfoamError, match=re.escape(message)) as info:
+        function()
+    assert isinstance(info.value, ValueError)  # an InputError: still the builtin a caller may catch
+
+
+def test_a_huge_value_is_not_echoed_back_whole(work, capsys):
+    (work / "scene.toml").write_text(scene_text().replace('[loads]', f'[fem.petsc]\nsnes_type = "{"x" * 5_000_000}"\n'
+                                                                     '[loads]'))
+    status, err = status_of([fenicsfoam_main, "run", str(work / "scene.toml"), "--out", str(work / "out")], capsys)
+    assert status == 2 and "fem.petsc.snes_type" in err and "characters left out" in err and len(err) < 3000

@@ -225,7 +225,7 @@ def test_ellipticity_over_compressions_with_the_paper_foam(cell):
     """Acoustic margins of uniaxial compressions along l and across l and simple shears, paper's foam:
     the SOFA element's (frozen-R) tangent keeps the linear law's margin G_l whatever the deformation;
     Bonet–Burton's margin equals that of an independent numpy tangent (finite differences), positive in every
-    compression along l, lost across l below a stretch of 0.75 and in tension or shear of a few per cent."""
+    compression along l (to 0.6), lost across l between stretches 0.8 and 0.7 and in tension or shear of 5 %."""
     msh, V, a = cell
     field = MaterialField.uniform(msh, PAPER_FOAM)
     axis = AXIS / np.linalg.norm(AXIS)
@@ -245,7 +245,7 @@ def test_ellipticity_over_compressions_with_the_paper_foam(cell):
     margins = [c.min_margin for c in bb.values()]
     along, across_, shears = margins[:6], margins[6:12], margins[12:]
     assert all(v > 0 for v in along[:5])
-    assert all(v > 0 for v in across_[:3]) and all(v < 0 for v in across_[4:])
+    assert all(v > 0 for v in across_[:3]) and all(v < 0 for v in across_[3:])
     assert along[5] < 0 and all(v < 0 for v in shears)
     assert all(c.lost_cells == 6 for c in bb.values() if c.min_margin < 0)
 
@@ -284,3 +284,18 @@ def test_serial_equals_mpi(model):
     serial = small_solve(MPI.COMM_SELF, model)
     assert np.abs(parallel).max() > 1e-3
     np.testing.assert_allclose(parallel, serial, rtol=1e-8, atol=1e-10)
+
+
+@pytest.mark.slow
+def test_bonet_burton_adjoint_gradient_is_second_order_accurate():
+    """The design code's adjoint gradient with the hyperelastic model (isotropic beam: compressible neo-Hooke; the TI
+    foams lose ellipticity under the beam's own weight with this model): Taylor remainders of order 2 in E_solid."""
+    from test_sensitivity import SIGNIFICANT, assert_second_order, scene, taylor
+
+    from fenicsfoam.design import SceneDesign
+
+    design = SceneDesign(scene("beam_iso", 0.0075, table="cube", **{"fem.model": "bonet_burton"}))
+    base = design.solve()
+    gradients = design.gradient(list(base), ["E_solid"])
+    slopes, remainders = taylor(design, base, gradients, "E_solid", 2e6)
+    assert_second_order(slopes, remainders, SIGNIFICANT, "bonet_burton E_solid")

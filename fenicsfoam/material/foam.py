@@ -58,6 +58,10 @@ def foam_material(density: float, gamma: float, E_solid: float, nu_solid: float,
     """
     from homogenization.tables import NU_SOLID, resolve_table
 
+    for name, value in (("density", density), ("gamma", gamma), ("E_solid", E_solid), ("nu_solid", nu_solid),
+                        ("rho_solid", rho_solid)):
+        if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+            raise InputError(f"{name} must be a number, got {type(value).__name__} {value!r:.80}")
     if fit not in FOAM_FITS:
         raise InputError(f"fit must be one of {FOAM_FITS}, got {fit!r}")
     label, table = resolve_table(table)

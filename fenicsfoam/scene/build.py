@@ -31,7 +31,7 @@ import numpy as np
 from fenicsfoam import orientation as orient
 from fenicsfoam.constitutive import MaterialField
 from fenicsfoam.material import MATERIAL_KINDS, Isotropic, tabulated_regions
-from fenicsfoam.meshcheck import check_degree, check_units, mesh_extent
+from fenicsfoam.meshcheck import UNITS_RANGE, check_degree, check_units, mesh_extent
 from fenicsfoam.scene.kinds import GEOMETRY_KINDS, GROUP_PROBE_KINDS, LOAD_KINDS, PROBE_KINDS, BuildContext
 from fenicsfoam.scene.schema import PETSC_PREFIX, Region, Scene
 from fenicsfoam.scene.table import SceneError, key_error
@@ -100,19 +100,50 @@ def _graded_record(region: Region, material, cells, comm) -> dict[str, Any]:
     return {"type": "graded " + type(material).__name__, "fit": region.parameters["fit"], **ranges}
 
 
-def _import_callable(spec: str) -> Callable[[np.ndarray], np.ndarray]:
-    """The user's ``module:function``; any exception it raises becomes a :class:`SceneError` naming it."""
+def _check_graded_range(cells, comm) -> None:
+    """Every graded cell's density and γ inside the foam table, counted over all ranks (collective).
+
+    :class:`InputError` with the total number of cells outside (a rank-local check would stop only the ranks
+    whose cells are outside, and count only theirs).
+    """
+    from fenicsfoam.grading import FoamTable
+
+    table = FoamTable()  # graded fields read the default table (_check_default_tables)
+    for name, foam in cells.foams.items():
+        for key, (lo, hi) in (("density", table.density_range), ("gamma", table.gamma_range)):
+            values = np.asarray(getattr(foam, key), dtype=float)
+            bad = ~(np.isfinite(values) & (values >= lo - 1e-12) & (values <= hi + 1e-12))
+            total = comm.allreduce(int(bad.sum()))
+            if total:
+                example = next(v for part in comm.allgather(values[bad][:1].tolist()) for v in part)
+                raise InputError(f"region {name!r}: {total} cell(s) have {key} outside the tabulated range "
+                                 f"[{lo:g}, {hi:g}] of the foam table (e.g. {example!r}; counted on all ranks)")
+
+
+def _import_callable(spec: str, comm=None) -> Callable[[np.ndarray], np.ndarray]:
+    """The user's ``module:function``; any exception it raises becomes a :class:`SceneError` naming it.
+
+    With ``comm``, a call fails on every rank when it fails on one (collective): the caller's next collective
+    call would otherwise wait forever for the failed rank.
+    """
     try:
         function = import_callable(spec)
     except InputError as exc:
         raise SceneError(f"orientation.function: {exc}") from exc
 
-    def directions(x: np.ndarray) -> np.ndarray:
+    def call(x: np.ndarray) -> np.ndarray:
         try:
-            return function(x)
-        except Exception as exc:
+            values = np.asarray(function(x))
+        except (Exception, SystemExit) as exc:  # a sys.exit in the user's function is a failure too
             raise SceneError(f"orientation.function: {spec}(x) raised {type(exc).__name__}: {exc}; it must map "
                              "an (n, 3) array of points (m) to an (n, 3) array of directions") from exc
+        if np.iscomplexobj(values):
+            raise SceneError(f"orientation.function: {spec}(x) returned complex values (e.g. "
+                             f"{values.ravel()[:1]}); it must return real directions")
+        return values
+
+    def directions(x: np.ndarray) -> np.ndarray:
+        return call(x) if comm is None else on_every_rank(comm, lambda: call(x), "orientation.function failed")
     return directions
 
 
@@ -139,7 +170,7 @@ ORIENTATIONS: dict[str, Callable] = {
     "per_tag": lambda mesh, cell_tags, spec: orient.per_tag(mesh, cell_tags, spec["directions"],
                                                             default=spec["default"]),
     "spiral": lambda mesh, cell_tags, spec: orient.from_callable(mesh, _spiral(spec)),
-    "callable": lambda mesh, cell_tags, spec: orient.from_callable(mesh, _import_callable(spec["function"])),
+    "callable": lambda mesh, cell_tags, spec: orient.from_callable(mesh, _import_callable(spec["function"], mesh.comm)),
 }
 
 
@@ -217,10 +248,15 @@ def build_model(scene: Scene, comm, before_problem: Callable[[Any], Mapping[str,
     size the run and refuse it, :mod:`fenicsfoam.sizing`); it returns PETSc options that the scene's own
     ``[fem.petsc]`` options override (e.g. the solver chosen by size).
     """
-    resolved = check_materials(scene)  # before meshing: fail fast
+    # before meshing: fail fast; reads files and imports the user's module, which may fail on one rank only
+    resolved = on_every_rank(comm, lambda: check_materials(scene), "checking the scene's materials failed")
     tagged = _build_mesh(scene, comm)
     mesh, cell_tags = tagged.mesh, tagged.cell_tags
     extent = mesh_extent(mesh)
+    if extent.size > UNITS_RANGE[1]:  # millimetres: refused here, not left to fail as a "material instability"
+        raise SceneError(f"geometry: the mesh is {extent.size:.4g} m across, more than the {UNITS_RANGE[1]:g} m a "
+                         "robot may be: fenicsfoam works in metres (SI units); a mesh drawn in millimetres must be "
+                         "scaled by 0.001 (gmsh: Mesh.ScalingFactor = 0.001 before writing the .msh file)")
     check_units(mesh, extent)
     check_degree(mesh, scene.degree, extent)
     materials = {tag: resolved[region.name] for region in scene.regions for tag in region.tags}
@@ -230,6 +266,7 @@ def build_model(scene: Scene, comm, before_problem: Callable[[Any], Mapping[str,
         from fenicsfoam.grading import CellMaterials
         try:
             cells = CellMaterials.from_regions(mesh, cell_tags, scene.regions, materials=resolved, blends=scene.blends)
+            _check_graded_range(cells, comm)
             field = cells.material_field(mesh, materials)
         except InputError as exc:
             raise SceneError(f"regions: {exc}") from exc

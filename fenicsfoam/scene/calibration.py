@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from foambase.errors import InputError
+from foambase.files import check_input_file
 
 __all__ = ["LEGACY_TABLE", "CalibrationError", "calibration_tables", "check_calibration_table", "foam_table_records",
            "read_calibration"]
@@ -39,7 +40,12 @@ class CalibrationError(InputError):
 
 def _load(path: Path) -> dict[str, Any]:
     try:
-        data = json.loads(path.read_text())
+        check_input_file(path, "calibration file", max_bytes=1 << 20)  # never opens a FIFO or reads /dev/zero
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except InputError as exc:
+        raise CalibrationError(f"cannot read {exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise CalibrationError(f"calibration file {str(path)!r} is not UTF-8 text (byte {exc.start})") from exc
     except OSError as exc:
         raise CalibrationError(f"cannot read calibration file {str(path)!r}: {exc.strerror}") from exc
     except json.JSONDecodeError as exc:

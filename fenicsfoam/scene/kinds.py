@@ -132,6 +132,10 @@ def _group(value: Any, path: str, mesh: MeshInfo, facets_only: bool = False) -> 
             return Group(value, tuple(mesh.facets[value]), False)
         if value in mesh.regions and not facets_only:
             return Group(value, tuple(mesh.regions[value]), True)
+        if value in mesh.regions:  # a volume where a surface is needed
+            raise SceneError(f"{path}: unknown facet group {value!r}: it is a volume group (a cell region) of the "
+                             f"mesh, and a surface is needed here; facet groups: "
+                             f"{', '.join(sorted(mesh.facets)) or 'none'}")
         names = sorted(mesh.facets) + ([] if facets_only else sorted(mesh.regions))
         what = "facet group" if facets_only else "facet group or region"
         raise SceneError(f"{path}: unknown {what} {value!r}; valid names: {', '.join(names) or 'none'}"
@@ -267,8 +271,8 @@ class LoadKind:
     section: str | None = None
 
 
-#: Motion names the scene uses itself (a ``[loads.motion.NAME]`` may not take them; ``servo0..2`` are the servos of
-#: ``loads.servos = true``, a ``[loads.servo.NAME]`` may take them).
+#: Motion names the scene uses itself (no named load or motion ``[loads.KIND.NAME]`` may take them; ``servo0..2``
+#: are the servos of ``loads.servos = true``, a ``[loads.servo.NAME]`` may take them).
 RESERVED_MOTIONS = ("clamp", "servo0", "servo1", "servo2")
 
 
@@ -407,6 +411,11 @@ def _named_tables(loads: _Table, key: str, read_one: Callable[[_Table, str], dic
     table = loads.table(key)
     if table is None:
         return {}
+    reserved = RESERVED_MOTIONS[:1] if key == "servo" else RESERVED_MOTIONS
+    for name in table.data:  # the scene's own motions are named so too: the steps could not tell them apart
+        if name in reserved:
+            raise SceneError(f"{table.path}.{name}: the name {name!r} is reserved ({', '.join(reserved)}); "
+                             "choose another name")
     named = {name: read_one(table.table(name), name) for name in list(table.data)}
     table.done()
     return named
@@ -718,8 +727,12 @@ def _read_mesh_file(geometry: _Table, base) -> MeshInfo:
     geometry.done()
     if not path.is_absolute() and base is not None:
         path = base / path
-    if not path.is_file():
-        raise SceneError(f"geometry.path: mesh file {str(path)!r} does not exist")
+    from foambase.errors import InputError
+    from foambase.files import check_input_file
+    try:  # a FIFO, a device or a directory is named as what it is, never opened
+        check_input_file(path, "geometry.path: mesh file")
+    except InputError as exc:
+        raise SceneError(str(exc)) from exc
     try:
         groups = physical_groups(path)
     except ValueError as exc:

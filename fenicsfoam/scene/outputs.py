@@ -16,6 +16,14 @@ Run folders (:class:`RunFolder`): an output directory holds one run
   ``"status"``: ``"complete"``; ``"failed"`` with ``error`` (a step did not converge, a solver option was not used);
   ``"interrupted"`` with ``error`` naming the signal and the step (SIGINT, SIGTERM). A run killed outright keeps
   ``"incomplete"``: a folder always says whether it holds a whole run.
+* One run per folder: from the start of the run to its end the folder is locked (``flock`` on the directory, by
+  rank 0). A second run into it is refused before any work if the lock is held when it starts, or when it would
+  start writing (:class:`InputError`, exit status 2) — or waits for the lock with ``wait=True`` (the command
+  line's ``--wait``). So a run's start-up clean-up never meets another live run's files: the temporary files it
+  removes were left by a run that was killed.
+* A file that cannot be written (disk full, file-size limit, quota) ends the run with ``"status": "failed"`` and
+  an error naming the file and the system's error (:class:`~foambase.errors.WriteError`); the file is absent or
+  its previous version, never half-written.
 * Names are safe by construction: the only names that come from the scene are step labels, which the scene's
   validation restricts to a safe character set (``fenicsfoam.scene.schema.LABEL_PATTERN``), and
   :func:`output_path` refuses any name that is not a plain file name inside the folder.
@@ -25,6 +33,8 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import errno
+import fcntl
 import io
 import json
 import logging
@@ -42,8 +52,8 @@ import numpy as np
 from fenicsfoam.io import PVD_FILE, write_pvd, write_vtu
 from fenicsfoam.scene.kinds import probe_size, probe_unit
 from fenicsfoam.scene.schema import LABEL_PATTERN, Scene
-from foambase.errors import InputError
-from foambase.files import TEMPORARY, check_output_dir, write_json_atomic, write_text_atomic
+from foambase.errors import InputError, WriteError
+from foambase.files import TEMPORARY, check_output_dir, keep_unclosable, write_json_atomic, write_text_atomic
 from foambase.mpi import on_rank0
 from foambase.signals import discard_temporary, register_temporary
 
@@ -233,13 +243,28 @@ class RunFolder:
 
     """
 
-    def __init__(self, path: str | os.PathLike, comm, what: str = "out_dir"):
-        self.path, self.comm, self.what = Path(path), comm, what
+    def __init__(self, path: str | os.PathLike, comm, what: str = "out_dir", wait: bool = False):
+        self.path, self.comm, self.what, self.wait = Path(path), comm, what, wait
+        self._lock: int | None = None
+
+    def _acquire(self, wait: bool) -> int:
+        """Lock the directory (``flock`` on it, rank 0): one run per folder. :class:`InputError` if another holds it."""
+        fd = os.open(self.path, os.O_RDONLY | os.O_DIRECTORY)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+        except BlockingIOError:
+            os.close(fd)
+            raise InputError(f"{self.what} {self.path}: another run is writing into this folder (it holds the "
+                             "folder's lock); give another directory, or wait for that run to end (the command "
+                             "line's --wait does)") from None
+        return fd
 
     def check(self) -> Path:
         """Check before any work that the directory can hold this run (collective); :class:`InputError` if not."""
         def check():
             path = check_output_dir(self.path, self.what)
+            if path.is_dir() and not self.wait:
+                os.close(self._acquire(wait=False))  # refused early if a run is writing there now
             if path.is_dir() and any(path.iterdir()) and _previous_run(path) is None:
                 raise InputError(f"{self.what} {path}: the directory is not empty and not a run's output folder "
                                  "(no summary.json of a run); give a new or empty directory, or a previous run's")
@@ -251,6 +276,7 @@ class RunFolder:
         """Remove the previous run's files and write ``summary.json`` with ``"status": "incomplete"`` (collective)."""
         def start():
             self.path.mkdir(parents=True, exist_ok=True)
+            self._lock = self._acquire(self.wait)  # held until finish(): no other run cleans up or writes here
             previous = _previous_run(self.path)
             if previous is not None:
                 for name in sorted(_previous_files(self.path, previous)):
@@ -279,8 +305,29 @@ class RunFolder:
         if error is not None:
             result.error = error
         if self.comm.rank == 0:
-            result.files = [n for n in result.files if (self.path / n).exists()]  # e.g. a picture interrupted
-            write_summary(result, self.path)
+            try:
+                result.files = [n for n in result.files if (self.path / n).exists()]  # e.g. a picture interrupted
+                write_summary(result, self.path)
+            finally:
+                if self._lock is not None:
+                    os.close(self._lock)  # releases the folder's lock
+                    self._lock = None
+
+
+def _system_error(directory: Path, size: int = 1 << 20) -> str:
+    """The system's error for a write of ``size`` bytes in ``directory`` (a probe, removed), or why none is seen."""
+    probe = directory / f".write-probe.{os.getpid()}"
+    try:
+        with open(probe, "wb") as f:
+            f.write(b"\0" * size)
+            f.flush()
+            os.fsync(f.fileno())
+    except OSError as exc:
+        return f"{exc.strerror} ({errno.errorcode.get(exc.errno, exc.errno)})"
+    finally:
+        with contextlib.suppress(OSError):
+            probe.unlink()
+    return "no system error reproduced by a test write (see HDF5's diagnostics above)"
 
 
 class XdmfSeries:
@@ -293,19 +340,38 @@ class XdmfSeries:
     def __init__(self, comm, out_dir: Path, mesh):
         from dolfinx.io import XDMFFile
         self._comm, self._out = comm, out_dir
-        tmp = comm.bcast(tempfile.mkdtemp(dir=out_dir, prefix=_XDMF_TEMPORARY) if comm.rank == 0 else None, root=0)
-        self._tmp = Path(tmp)
+        tmp = None
+        if comm.rank == 0:
+            tmp = tempfile.mkdtemp(dir=out_dir, prefix=_XDMF_TEMPORARY)
+            register_temporary(tmp)  # at once: a signal during the broadcast below must not leave it behind
+        self._tmp = Path(comm.bcast(tmp, root=0))
         register_temporary(self._tmp)  # removed on every rank if a signal arrives
         self._file = XDMFFile(comm, str(self._tmp / "solution.xdmf"), "w")
-        self._file.write_mesh(mesh)
+        self._guarded(lambda: self._file.write_mesh(mesh))
+
+    def _guarded(self, write) -> None:
+        """Run a write of the HDF5/XDMF file; an HDF5 failure becomes a :class:`WriteError` naming the file.
+
+        HDF5 reports only that it failed (its own diagnostics go to stderr); the system's error is found by
+        writing as many bytes again beside it (:func:`_system_error`). A file HDF5 could not write cannot be
+        closed either, and its C++ destructor would then abort the process: it is kept open (leaked) instead.
+        """
+        try:
+            write()
+        except RuntimeError as exc:
+            keep_unclosable(self._file)
+            self._file = None
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            raise WriteError(f"cannot write {self._out / 'solution.h5'}: HDF5 failed ({exc}): "
+                             f"{_system_error(self._tmp.parent)}; the series was not written") from exc
 
     def write(self, u, t: float) -> None:
         """Append the displacement ``u`` at time ``t`` (collective)."""
-        self._file.write_function(u, t)
+        self._guarded(lambda: self._file.write_function(u, t))
 
     def commit(self) -> None:
         """Close the files and move them into the output directory (collective)."""
-        self._file.close()
+        self._guarded(self._file.close)
         self._comm.Barrier()
         if self._comm.rank == 0:
             (self._tmp / "solution.h5").replace(self._out / "solution.h5")
@@ -320,7 +386,7 @@ class XdmfSeries:
         ``collective``: close the files first (every rank must call); an interrupted run passes False, as the
         other ranks may have stopped (closing a parallel HDF5 file waits for them).
         """
-        if collective:
+        if collective and self._file is not None:
             with contextlib.suppress(Exception):
                 self._file.close()
         for _ in range(10):  # another rank may still be writing a file into it (until it waits in MPI): retry

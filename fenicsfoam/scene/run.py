@@ -128,7 +128,7 @@ def _value(value: Any) -> float | list[float]:
 
 
 def run_scene(source: str | os.PathLike | Mapping[str, Any] | Scene, out_dir: str | os.PathLike | None = None, *,
-              comm=None, solver: str = "auto", force: bool = False, echo=None) -> SceneResult:
+              comm=None, solver: str = "auto", force: bool = False, echo=None, wait: bool = False) -> SceneResult:
     """Build a scene, run its load schedule, evaluate its probes after every step and write its outputs.
 
     Parameters
@@ -151,6 +151,9 @@ def run_scene(source: str | os.PathLike | Mapping[str, Any] | Scene, out_dir: st
     echo
         Called on rank 0 with the size estimate before assembly and, after a failure or an interruption, with the
         table of the steps done (the command line passes ``print``); None: the log only.
+    wait
+        If another run is writing into ``out_dir`` (it holds the folder's lock), wait for it to end instead of
+        refusing (:class:`InputError`).
 
     Returns
     -------
@@ -176,7 +179,7 @@ def run_scene(source: str | os.PathLike | Mapping[str, Any] | Scene, out_dir: st
     start = time.perf_counter()
     scene = source if isinstance(source, Scene) else load_scene(source)
     sizing.choose_solver(solver, 0)  # a bad name fails before any work
-    folder = None if out_dir is None else RunFolder(out_dir, comm)
+    folder = None if out_dir is None else RunFolder(out_dir, comm, wait=wait)
     if folder is not None:
         folder.check()
     check_solver_options(scene)
@@ -220,12 +223,13 @@ def run_scene(source: str | os.PathLike | Mapping[str, Any] | Scene, out_dir: st
     register_last_resort(last_resort)
     writing = out is not None and scene.xdmf
     layout = NodeLayout(problem.V) if writing else None
-    series = XdmfSeries(comm, out, problem.V.mesh) if writing else None
-    solution = SolutionWriter(problem.V, out, layout) if writing else None
-    fields = FieldSeries(model, scene, out, layout) if writing else None
+    series = solution = fields = None
     pictures = scene.png if out is not None else ()
     failure = None
-    try:
+    try:  # the writers too: one that cannot write (disk full) fails the run like any other error
+        series = XdmfSeries(comm, out, problem.V.mesh) if writing else None
+        solution = SolutionWriter(problem.V, out, layout) if writing else None
+        fields = FieldSeries(model, scene, out, layout) if writing else None
         for index, step in enumerate(model.steps):
             current[0] = step.label
             progress.status(f"step {index + 1}/{len(model.steps)} {step.label}: started")

@@ -29,7 +29,9 @@ from fenicsfoam.scene.kinds import (
     MeshInfo,
     tripod_flat_servos,
 )
-from fenicsfoam.scene.table import SceneError, _Table, _tags, _type_name, _vector
+from fenicsfoam.scene.table import KNOWN_KEYS, SceneError, _Table, _tags, _type_name, _vector
+from foambase.errors import InputError
+from foambase.files import check_input_file
 
 __all__ = ["LABEL_PATTERN", "RESERVED_NAMES", "Region", "Scene", "Step", "load_scene", "parse_scene"]
 
@@ -37,6 +39,7 @@ __all__ = ["LABEL_PATTERN", "RESERVED_NAMES", "Region", "Scene", "Step", "load_s
 MATERIAL_KEYS: dict[str, dict[str, tuple[bool, float | None]]] = {
     name: {k.name: (k.required, k.default) for k in kind.keys if k.form in ("number", "field", "modulus")}
     for name, kind in MATERIAL_KINDS.items()}
+KNOWN_KEYS.update(k.name for kind in MATERIAL_KINDS.values() for k in kind.keys)  # never taken for typos
 #: Range checks of the material constants (the material classes check admissibility again).
 MATERIAL_CHECKS: dict[str, dict[str, Any]] = {k.name: {"check": k.check, "valid": k.valid}
                                               for kind in MATERIAL_KINDS.values() for k in kind.keys if k.check}
@@ -46,6 +49,12 @@ PETSC_PREFIX = "scene_"
 #: Step labels name output files (``<label>.png``), so they are safe file names on every platform: ASCII letters,
 #: digits, ``_``, ``-`` and ``.``, starting with a letter or a digit, at most 64 characters.
 LABEL_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
+#: The longest scene ``name`` (it titles pictures and the progress bar).
+MAX_NAME = 200
+#: The largest scene file read (a scene is a page of text; anything larger is not one).
+MAX_SCENE_BYTES = 16 << 20
+#: The most load increments a step may ask for (each is at least one Newton solve; more is a typo, not a plan).
+MAX_INCREMENTS = 10_000
 #: Names of a run's fixed outputs (``summary.json``, ``probes.csv``, ``solution.pvd``, ``orientation.png``,
 #: ``run.log``): no step label may take one (compared without case, as case-insensitive file systems do).
 RESERVED_NAMES = ("summary", "probes", "solution", "orientation", "run")
@@ -212,7 +221,7 @@ def _read_field(table: _Table, key: str, tags: tuple[int, ...], named: Mapping[s
     spec.done()
     values: dict[int, float] = {}
     for name in per_tag.data:
-        keys = _tags(int(name) if name.lstrip("-").isdigit() else name, per_tag.key(name), named, "region")
+        keys = _tags(_tag_key(name), per_tag.key(name), named, "region")
         value = per_tag.number(name, required=True, **checks)
         for tag in keys:
             if tag not in tags:
@@ -277,6 +286,19 @@ def _read_regions(scene: _Table, mesh: MeshInfo, base: Path | None = None) -> tu
     return regions
 
 
+def _tag_key(key: str) -> int | str:
+    """A per-tag table's key: an integer cell tag if it is written in ASCII digits, else a region name."""
+    return int(key) if re.fullmatch(r"-?[0-9]+", key) else key
+
+
+def _direction(table: _Table, key: str, required: bool = False) -> tuple[float, ...] | None:
+    """A direction: 3 finite numbers, not all zero (:class:`SceneError` naming the key)."""
+    value = table.vector(key, 3, required=required)
+    if value is not None and not any(value):
+        raise SceneError(f"{table.key(key)}: a direction must be a non-zero vector, got {list(value)}")
+    return value
+
+
 def _read_orientation(scene: _Table, mesh: MeshInfo) -> dict[str, Any] | None:
     """``[orientation]`` (optional): the kind and its parameters."""
     table = scene.table("orientation")
@@ -285,16 +307,19 @@ def _read_orientation(scene: _Table, mesh: MeshInfo) -> dict[str, Any] | None:
     kind = table.string("kind", required=True, choices=ORIENTATION_KINDS)
     spec: dict[str, Any] = {"kind": kind}
     if kind == "uniform":
-        spec["direction"] = table.vector("direction", 3, required=True)
+        spec["direction"] = _direction(table, "direction", required=True)
     elif kind == "per_tag":
         directions = table.table("directions", required=True)
         spec["directions"] = {}
         for key in directions.data:
-            tags = _tags(int(key) if key.lstrip("-").isdigit() else key, directions.key(key), mesh.regions, "region")
-            d = directions.vector(key, 3, required=True)
+            tags = _tags(_tag_key(key), directions.key(key), mesh.regions, "region")
+            d = _direction(directions, key, required=True)
             spec["directions"].update(dict.fromkeys(tags, d))
         directions.done()
-        spec["default"] = table.vector("default", 3)
+        spec["default"] = _direction(table, "default")
+        if spec["default"] is not None and mesh.cell_tags and set(mesh.cell_tags) <= set(spec["directions"]):
+            raise SceneError(f"{table.key('default')}: every cell tag of the mesh ({sorted(mesh.cell_tags)}) has a "
+                             "direction, so the default would never be used; remove it")
     elif kind == "spiral":
         spec["pitch_deg"] = table.number("pitch_deg", required=True, check=lambda v: 0 <= v <= 90,
                                          valid="an angle in [0, 90] degrees (0: circles, 90: radial)")
@@ -479,7 +504,7 @@ def _read_step(table: _Table, loads: Mapping[str, Any]) -> Step:
     label = _read_label(table)
     gravity = table.number("gravity", check=lambda v: v >= 0, valid="a load factor >= 0 (1: full gravity)")
     servos = _read_step_servos(table, loads)
-    increments = table.integer("increments", default=1, minimum=1)
+    increments = table.integer("increments", default=1, minimum=1, maximum=MAX_INCREMENTS)
     factors = {**_read_step_loads(table, loads), **_read_step_contacts(table, loads)}
     motions = _read_step_motions(table, loads)
     table.done()
@@ -559,8 +584,14 @@ def parse_scene(data: Mapping[str, Any], base: str | os.PathLike | None = None) 
         On the first problem found, naming its key path (e.g. ``regions.arms.density``) and what is valid.
 
     """
+    if not isinstance(data, Mapping):
+        raise SceneError(f"scene: expected a table (a dict, as tomllib reads one), got {type(data).__name__} "
+                         f"{data!r:.80}")
     scene = _Table(dict(data), "")
     name = scene.string("name", default="scene")
+    if len(name) > MAX_NAME or not name.isprintable():
+        raise SceneError(f"name: expected a printable name of at most {MAX_NAME} characters (it titles the pictures "
+                         f"and the progress bar), got {len(name)} characters starting {name[:40]!r}")
     scene.string("description", default="")
     base = None if base is None else Path(base)
     mesh = _read_geometry(scene, base)
@@ -583,7 +614,13 @@ def load_scene(source: str | os.PathLike | Mapping[str, Any]) -> Scene:
     """Read and validate a scene from a TOML file (path) or a dict; :class:`SceneError` names the problem."""
     if isinstance(source, Mapping):
         return parse_scene(source)
+    if not isinstance(source, str | os.PathLike):
+        raise SceneError(f"scene: expected a TOML file's path or a dict, got {type(source).__name__} {source!r:.80}")
     path = Path(source)
+    try:
+        check_input_file(path, "scene", max_bytes=MAX_SCENE_BYTES)  # a FIFO or /dev/zero is never opened
+    except InputError as exc:
+        raise SceneError(str(exc)) from exc
     try:
         with path.open("rb") as f:
             data = tomllib.load(f)

@@ -7,6 +7,7 @@ naming the key path and what would be valid.
 
 from __future__ import annotations
 
+import difflib
 import math
 import re
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -26,6 +27,19 @@ def _type_name(value: Any) -> str:
             dict: "table"}.get(type(value), type(value).__name__)
 
 
+#: Key names the scene schema reads somewhere (the readers add theirs; the schema adds the materials'): a key of
+#: a table that is one of them is never taken for a misspelling of another.
+KNOWN_KEYS: set[str] = set()
+
+
+def did_you_mean(word: str, candidates) -> str | None:
+    """The candidate equal to ``word`` but for case, else the closest (``difflib``, similarity >= 0.75), or None."""
+    candidates = [c for c in candidates if isinstance(c, str)]
+    same = [c for c in candidates if c.lower() == word.lower()]
+    match = same or difflib.get_close_matches(word, candidates, n=1, cutoff=0.75)
+    return match[0] if match else None
+
+
 class _Table:
     """A TOML table being read: every key taken is remembered; :meth:`done` refuses the keys left over."""
 
@@ -42,8 +56,13 @@ class _Table:
 
     def raw(self, key: str, default: Any = None, required: bool = False) -> Any:
         self._taken.add(key)
+        KNOWN_KEYS.add(key)
         if key not in self.data:
             if required:
+                typo = did_you_mean(key, [k for k in self.data if k not in self._taken and k not in KNOWN_KEYS])
+                if typo is not None:  # e.g. gama for gamma: said as the unknown key it is
+                    raise SceneError(f"{self.key(typo)}: unknown key; did you mean {key!r}? ({self.key(key)} is "
+                                     "required)")
                 raise SceneError(f"{self.key(key)}: missing value (required)")
             return default
         return self.data[key]
@@ -59,8 +78,8 @@ class _Table:
             raise SceneError(f"{self.key(key)}: {value!r} is out of range; valid: {valid}")
         return float(value)
 
-    def integer(self, key: str, *, default: int, choices: Sequence[int] | None = None, minimum: int | None = None
-                ) -> int:
+    def integer(self, key: str, *, default: int, choices: Sequence[int] | None = None, minimum: int | None = None,
+                maximum: int | None = None) -> int:
         value = self.raw(key, default)
         if isinstance(value, bool) or not isinstance(value, int):
             raise SceneError(f"{self.key(key)}: expected an integer, got {_type_name(value)} {value!r}")
@@ -68,6 +87,8 @@ class _Table:
             raise SceneError(f"{self.key(key)}: {value!r} is not valid; valid: {', '.join(map(str, choices))}")
         if minimum is not None and value < minimum:
             raise SceneError(f"{self.key(key)}: {value!r} is out of range; valid: an integer >= {minimum}")
+        if maximum is not None and value > maximum:
+            raise SceneError(f"{self.key(key)}: {value!r} is out of range; valid: an integer <= {maximum}")
         return value
 
     def string(self, key: str, *, required: bool = False, default: str | None = None,
@@ -102,7 +123,9 @@ class _Table:
         unknown = sorted(set(self.data) - self._taken - set(allowed_extra))
         if unknown:
             valid = sorted(self._taken | set(allowed_extra))
-            raise SceneError(f"{self.key(unknown[0])}: unknown key; valid keys here: {', '.join(valid) or 'none'}")
+            hint = did_you_mean(unknown[0], valid)
+            raise SceneError(f"{self.key(unknown[0])}: unknown key; {f'did you mean {hint!r}? ' if hint else ''}"
+                             f"valid keys here: {', '.join(valid) or 'none'}")
 
 
 def _vector(value: Any, size: int, path: str) -> tuple[float, ...]:
