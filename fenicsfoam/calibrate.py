@@ -57,7 +57,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from fenicsfoam.material import tabulated_regions
+from fenicsfoam.material import MATERIAL_KINDS, tabulated_regions
 from fenicsfoam.scene.calibration import (
     LEGACY_TABLE,
     CalibrationError,
@@ -147,7 +147,9 @@ def scene_with_E_solid(data: Mapping[str, Any], E_solid: float) -> dict[str, Any
     """
     out = copy.deepcopy(dict(data))
     for region in out.get("regions", {}).values():
-        if isinstance(region, dict) and region.get("material") == "foam":
+        material = region.get("material") if isinstance(region, dict) else None
+        kind = MATERIAL_KINDS.get(material) if isinstance(material, str) else None
+        if kind is not None and kind.key("E_solid") is not None:
             region["E_solid"] = float(E_solid)
     return out
 

@@ -51,6 +51,7 @@ from typing import Any
 import numpy as np
 from mpi4py import MPI
 
+from foambase.cells import num_owned_cells
 from foambase.errors import InputError
 
 __all__ = ["ACTUATOR_KINDS", "COMPONENT_KINDS", "MISFIT_SCALES", "DesignHistory", "DesignResult", "OrientationDesign",
@@ -85,7 +86,7 @@ class OrientationDesign:
         self.field = field
         self.offset_deg = float(self.spec.get("offset_deg", 0.0))
         self.pitch_deg = float(self.spec["pitch_deg"]) if self.spec["kind"] == "spiral" else None
-        n = mesh.topology.index_map(mesh.topology.dim).size_local
+        n = num_owned_cells(mesh)
         self.angle_deg = np.zeros(n)
         self._midpoints = compute_midpoints(mesh, mesh.topology.dim, np.arange(n, dtype=np.int32))
         self._base = _rotate_z(cell_values(field), np.full(n, -math.radians(self.offset_deg)))
@@ -187,7 +188,7 @@ class SceneDesign:
         self.steps = list(self.model.steps)
         self.solves = 0
         self._adjoint = None
-        self.n_cells = mesh.topology.index_map(mesh.topology.dim).size_local
+        self.n_cells = num_owned_cells(mesh)
 
     # ----------------------------------------------------------------------------------------------
     # Parameters
@@ -255,7 +256,8 @@ class SceneDesign:
         """Set parameters (``{name: value}``) and update the coefficient data; solve afterwards."""
         for name in values:
             self._check(name)
-        scalars = {n: v for n, v in values.items() if n == "E_solid" or ":" in n}
+        scalars = {n: v for n, v in values.items()  # the material numbers: E_solid, density:REGION, gamma:REGION
+                   if n not in self.servos and n not in self.actuators and (n == "E_solid" or ":" in n)}
         if scalars:  # the scene's own values, checked as a scene's (fenicsfoam.scene.vary_scene) before any change
             from fenicsfoam.scene import vary_scene
             self.scene = vary_scene(self.scene, {n: float(v) for n, v in scalars.items()})

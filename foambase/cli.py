@@ -36,7 +36,6 @@ A ``sys.exit`` called inside a command (e.g. by a user's function) is a failure 
 from __future__ import annotations
 
 import argparse
-import importlib
 import os
 import sys
 import traceback
@@ -103,8 +102,9 @@ def nonempty_path(text: str) -> Path:
 
 def resolve(spec: str) -> Command:
     """The :class:`Command` named by ``"module:ATTRIBUTE"``."""
-    module, _, attribute = spec.partition(":")
-    return getattr(importlib.import_module(module), attribute)
+    from foambase.imports import import_object
+
+    return import_object(spec)
 
 
 def _verbosity(parser: argparse.ArgumentParser, dest: str = "verbose") -> None:

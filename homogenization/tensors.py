@@ -207,17 +207,20 @@ def transverse_isotropic_compliance(E_t: float, E_l: float, nu_t: float, nu_tl: 
     """TI Voigt compliance in the local frame (l = axis 3), the closed form of docs/conventions.md.
 
     ``S11 = S22 = 1/E_t``, ``S33 = 1/E_l``, ``S12 = -nu_t/E_t``, ``S13 = S23 = -nu_tl/E_t``,
-    ``S44 = S55 = 1/G_l``, ``S66 = 2(1 + nu_t)/E_t``.
+    ``S44 = S55 = 1/G_l``, ``S66 = 2(1 + nu_t)/E_t``. Numbers give one (6, 6) compliance, checked for
+    admissibility; arrays (one value per cell) give (m, 6, 6), unchecked (the per-cell moduli of graded foams).
     """
-    check_transverse_isotropic(E_t, E_l, nu_t, nu_tl, G_l)
-    S = np.zeros((6, 6))
+    constants = (E_t, E_l, nu_t, nu_tl, G_l)
+    if all(np.ndim(c) == 0 for c in constants):
+        check_transverse_isotropic(*constants)
+    S = np.zeros((6, 6, *np.broadcast(*constants).shape))  # per-cell values along the trailing axes
     S[0, 0] = S[1, 1] = 1.0 / E_t
     S[2, 2] = 1.0 / E_l
     S[0, 1] = S[1, 0] = -nu_t / E_t
     S[0, 2] = S[2, 0] = S[1, 2] = S[2, 1] = -nu_tl / E_t
     S[3, 3] = S[4, 4] = 1.0 / G_l
     S[5, 5] = 2.0 * (1.0 + nu_t) / E_t
-    return S
+    return np.moveaxis(S, (0, 1), (-2, -1))
 
 
 def transverse_isotropic_voigt(E_t: float, E_l: float, nu_t: float, nu_tl: float, G_l: float) -> np.ndarray:

@@ -49,13 +49,14 @@ def test_a_variation_is_checked_naming_the_key(changes, message):
         vary_scene(parse_scene(scene_dict("tripod_case_a")), changes)
 
 
-def test_uncertainty_refuses_a_graded_scene_before_any_work(tmp_path):
+@pytest.mark.mpi
+def test_uncertainty_refuses_a_graded_scene_before_any_work(mpi_tmp_path):
     """The per-seed tables cannot replace the table graded fields read: refused before the nominal run."""
     data = scene_dict("tripod_case_a_graded")
     with pytest.raises(UncertaintyError, match="graded foam fields .* read the default foam table only") as info:
-        run_with_uncertainty(data, tmp_path / "out", comm=MPI.COMM_SELF)
+        run_with_uncertainty(data, mpi_tmp_path / "out", comm=MPI.COMM_WORLD)
     assert isinstance(info.value, FenicsfoamError) and info.value.exit_code == 2
-    assert not (tmp_path / "out").exists()
+    assert not (mpi_tmp_path / "out").exists()
 
 
 def test_foam_material_interpolates_as_scipy_pchip_between_nodes():

@@ -13,7 +13,8 @@ With ``a = e3`` its components give ``C12 = λ``, ``C66 = μ_T``, ``C44 = μ_L``
 
 An isotropic material is the TI material with ``μ_T = μ_L = μ`` and ``α = β = 0``, whatever its axis. The
 functions here take numbers or arrays (one value per cell) and, for the per-cell fields of graded foams and
-designs, the tangents of the constants: ``C = S⁻¹`` per cell and ``dC = −C dS C``.
+designs, the tangents of the constants: ``C = S⁻¹`` per cell (the compliance of
+:func:`homogenization.tensors.transverse_isotropic_compliance`) and ``dC = −C dS C``.
 """
 
 from __future__ import annotations
@@ -22,7 +23,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["MODULI_NAMES", "isotropic_moduli", "lame", "spencer_from_voigt", "spencer_moduli", "ti_compliance"]
+from homogenization.tensors import transverse_isotropic_compliance
+
+__all__ = ["MODULI_NAMES", "isotropic_moduli", "lame", "spencer_from_voigt", "spencer_moduli"]
 
 #: Names of the DG0 moduli of :class:`fenicsfoam.constitutive.MaterialField`: isotropic scenes, anisotropic ones.
 MODULI_NAMES = {True: ("lmbda", "mu"), False: ("lmbda", "mu_T", "mu_L", "alpha", "beta")}
@@ -37,22 +40,6 @@ def spencer_from_voigt(C: np.ndarray) -> dict[str, np.ndarray]:
     """The Spencer moduli of TI Voigt stiffnesses ``C`` (..., 6, 6) with l = local axis 3 (module docstring)."""
     return {"lmbda": C[..., 0, 1], "mu_T": C[..., 5, 5], "mu_L": C[..., 3, 3], "alpha": C[..., 0, 2] - C[..., 0, 1],
             "beta": C[..., 0, 0] + C[..., 2, 2] - 2.0 * C[..., 0, 2] - 4.0 * C[..., 3, 3]}
-
-
-def ti_compliance(E_t, E_l, nu_t, nu_tl, G_l) -> np.ndarray:
-    """Voigt compliance (m, 6, 6) of TI constants given as arrays (local axis 3 = l), docs/conventions.md.
-
-    The per-cell form of :func:`homogenization.tensors.transverse_isotropic_compliance`.
-    """
-    m = np.broadcast(E_t, E_l, nu_t, nu_tl, G_l).size
-    S = np.zeros((m, 6, 6))
-    S[:, 0, 0] = S[:, 1, 1] = 1.0 / E_t
-    S[:, 2, 2] = 1.0 / E_l
-    S[:, 0, 1] = S[:, 1, 0] = -nu_t / E_t
-    S[:, 0, 2] = S[:, 2, 0] = S[:, 1, 2] = S[:, 2, 1] = -nu_tl / E_t
-    S[:, 3, 3] = S[:, 4, 4] = 1.0 / G_l
-    S[:, 5, 5] = 2.0 * (1.0 + nu_t) / E_t
-    return S
 
 
 def _ti_compliance_tangent(E_t, E_l, nu_t, nu_tl, G_l, dE_t, dE_l, dnu_t, dnu_tl, dG_l) -> np.ndarray:
@@ -74,7 +61,7 @@ def spencer_moduli(E_t, E_l, nu_t, nu_tl, G_l, tangents: Sequence[Sequence[np.nd
     ``C = S⁻¹`` per cell, ``dC = −C dS C``.
     """
     args = [np.atleast_1d(np.asarray(a, dtype=float)) for a in (E_t, E_l, nu_t, nu_tl, G_l)]
-    C = np.linalg.inv(ti_compliance(*args))
+    C = np.linalg.inv(transverse_isotropic_compliance(*args))
     out = [spencer_from_voigt(-C @ _ti_compliance_tangent(*args, *t) @ C) for t in tangents]
     return spencer_from_voigt(C), out
 
