@@ -122,6 +122,7 @@ __all__ = [
     "FFTConvergenceError",
     "ReferenceMedium",
     "homogenize_fft",
+    "SingularStiffnessError",
     "reference_medium",
     "wave_directions",
 ]
@@ -153,6 +154,22 @@ class FFTConvergenceError(NotConvergedError):
     def __reduce__(self):
         # picklable across processes (multiprocessing, the benchmark's child processes)
         return type(self), (self.args[0], self.case, self.residuals)
+
+
+class SingularStiffnessError(ComputationError):
+    """The homogenized stiffness is singular or not positive definite: the solid does not percolate.
+
+    Raised by :func:`homogenize_fft` (unless ``allow_singular=True``) when an image with a void phase gives a C
+    whose smallest eigenvalue (Mandel form) is at most :data:`SINGULAR_RTOL` ``× tol ×`` the largest eigenvalue of
+    the stiffest phase in the image. Carries ``result``, the :class:`HomogenizationResult` that was refused.
+    """
+
+    def __init__(self, message: str, result=None):
+        super().__init__(message)
+        self.result = result
+
+    def __reduce__(self):
+        return type(self), (self.args[0], self.result)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -737,6 +754,7 @@ def homogenize_fft(
     return_fields: bool = False,
     comm=None,
     slab: bool = False,
+    allow_singular: bool = False,
 ) -> HomogenizationResult:
     """Homogenized stiffness of a periodic voxel image by FFT (see the module docstring for the method).
 
@@ -799,6 +817,13 @@ def homogenize_fft(
     slab
         Distributed mode only: ``phases`` is this rank's slab ``phases[slice(*slab_planes(N1, comm))]`` of the
         global image, for images too large for one rank; default: every rank passes the same full image.
+    allow_singular
+        If False (default), an image with a zero-stiffness (void) phase whose converged C is singular or not
+        positive definite raises :class:`SingularStiffnessError`: the smallest eigenvalue of C (Mandel form) is
+        at most ``SINGULAR_RTOL × tol`` times the largest eigenvalue of the stiffest phase in the image, i.e. zero
+        within the solver's tolerance (the solid does not percolate: isolated blocks, or layers separated by
+        void). Checked when all six columns of C are solved and every load case converged. True returns such a C
+        (an image that deliberately does not percolate).
 
     Returns
     -------
@@ -838,7 +863,37 @@ def homogenize_fft(
                  "volume_fractions": {str(p): f for p, f in ws.fractions.items()}}
     finally:
         ws.close()
-    return _assemble_result(run, cases, stats, marks.summary(run.strains, setup_s), t_start, comm)
+    result = _assemble_result(run, cases, stats, marks.summary(run.strains, setup_s), t_start, comm)
+    if not allow_singular:
+        _check_not_singular(run, result)
+    return result
+
+
+#: A C whose smallest eigenvalue is at most ``SINGULAR_RTOL × tol × λmax(stiffest phase)`` is refused as singular
+#: (:func:`homogenize_fft`, ``allow_singular``): a relative residual ``tol`` determines the mean stresses to about
+#: ``tol × λmax``, so an eigenvalue a hundred times below that is zero within the solver's tolerance.
+SINGULAR_RTOL = 1e-2
+
+
+def _check_not_singular(run: _Run, result: HomogenizationResult) -> None:
+    """Raise :class:`SingularStiffnessError` if an image with void gives a C that is zero within the tolerance."""
+    present = [p for p, n in run.counts.items() if n > 0 and p in run.stiffness]
+    void = [p for p in present if not np.any(run.stiffness[p])]
+    if not void or not result.converged or not np.all(np.isfinite(result.C)):
+        return  # without void C ≥ the Reuss bound > 0; a non-converged or partial C is reported otherwise
+    # in the solver's scaled units (the stiffnesses times 2**scale): no overflow for moduli near the float limit
+    solid_max = max(float(np.linalg.eigvalsh(run.stiffness[p]).max()) for p in present)
+    eig = np.linalg.eigvalsh(voigt_to_mandel(np.ldexp(result.C, run.scale)))
+    if eig.min() > SINGULAR_RTOL * run.tol * solid_max:
+        return
+    with np.errstate(over="ignore"):
+        low, high, solid = (float(np.ldexp(v, -run.scale)) for v in (eig.min(), eig.max(), solid_max))
+    raise SingularStiffnessError(
+        f"the homogenized stiffness is singular or not positive definite: its smallest eigenvalue (Mandel) is "
+        f"{low:.3g} = {eig.min() / solid_max:.3g} × the stiffest phase's largest ({solid:.3g}), largest "
+        f"of C {high:.3g}; the solid (phases {sorted(set(present) - set(void))}, void {void}) does not "
+        f"percolate — isolated pieces or layers separated by void carry no load. Pass allow_singular=True to "
+        f"return such a C. C = {np.array2string(result.C, precision=4)}", result)
 
 
 def slab_planes(n1: int, comm, rank: int | None = None) -> tuple[int, int]:

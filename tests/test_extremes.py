@@ -99,7 +99,8 @@ def laminate_image(n_solid: int, n_void: int, m: int) -> np.ndarray:
 def test_zero_void_laminate_fft_and_fem_match_exact_formula():
     """A laminate of solid and an exactly-zero void: FFT (cg, rotated) and the FEM RVE are finite and exact."""
     exact = laminate_void_exact(C_SOLID, 3 / 5)
-    r = homogenize_fft(laminate_image(3, 2, 4), [np.zeros((6, 6)), C_SOLID], tol=1e-10, threads=1)
+    r = homogenize_fft(laminate_image(3, 2, 4), [np.zeros((6, 6)), C_SOLID], tol=1e-10, threads=1,
+                       allow_singular=True)  # no stiffness across the void layers
     assert np.all(np.isfinite(r.C))
     assert np.abs(r.C - exact).max() < 1e-8
 

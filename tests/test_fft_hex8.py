@@ -73,7 +73,7 @@ def test_void_laminate_limit(axis):
     survives; the finite-contrast laminate tends to it (contrast 1e-8 here) and the zero void gives it."""
     img = layered_image(8, axis, 5)  # 5 solid layers, 3 void
     solid = TI
-    r = homogenize_fft(img, [VOID, solid], discretization="hex8", tol=1e-10)
+    r = homogenize_fft(img, [VOID, solid], discretization="hex8", tol=1e-10, allow_singular=True)  # no stiffness across
     near = laminate([1e-8 * C_SOFT, solid], [3 / 8, 5 / 8], axis)
     assert rel(r.C, near) < 1e-6
     from test_fft import NORMAL_COMPONENTS
