@@ -70,12 +70,34 @@ def seed_tables(samples_csv: str | os.PathLike, out_dir: str | os.PathLike) -> d
     Each table has the mean table's format (:func:`homogenization.tables.aggregate` of that seed's rows alone),
     so ``foam_material(..., table=path)`` reads it. Every seed must cover every (density, γ) of the samples.
     """
-    from homogenization.tables import aggregate, to_csv
+    from homogenization.tables import AGGREGATED, aggregate, to_csv
 
-    with open(samples_csv, newline="") as f:
-        rows = list(csv.DictReader(f))
+    try:
+        with open(samples_csv, newline="", encoding="utf-8") as f:
+            reader = csv.DictReader(f)
+            header = reader.fieldnames or []
+            rows = list(reader)
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise UncertaintyError(f"{samples_csv}: not a CSV file of foam samples ({exc})") from exc
+    if not header:
+        raise UncertaintyError(f"{samples_csv}: empty file, no header; expected the columns of a foam samples CSV "
+                               f"(density, gamma, seed, {', '.join(AGGREGATED)})")
+    missing = [c for c in ("density", "gamma", "seed", *AGGREGATED) if c not in header]
+    if missing:
+        raise UncertaintyError(f"{samples_csv}: no column {missing[0]!r}"
+                               + (f" (nor {', '.join(map(repr, missing[1:4]))}…)" if len(missing) > 1 else "")
+                               + "; a foam samples CSV (homogenization.tables, one row per seed) has density, gamma, "
+                               "seed and the homogenized constants")
     if not rows:
         raise UncertaintyError(f"{samples_csv}: no samples")
+    for i, r in enumerate(rows, start=2):
+        for c in ("density", "gamma", "seed", *AGGREGATED):
+            try:
+                if not math.isfinite(float(r[c])):
+                    raise ValueError
+            except (TypeError, ValueError):
+                raise UncertaintyError(f"{samples_csv}: line {i}, column {c!r}: {r[c]!r:.40} is not a finite "
+                                       "number") from None
     nodes = {(float(r["density"]), float(r["gamma"])) for r in rows}
     by_seed: dict[int, list[dict]] = {}
     for r in rows:

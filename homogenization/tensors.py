@@ -159,11 +159,12 @@ def check_transverse_isotropic(E_t: float, E_l: float, nu_t: float, nu_tl: float
         raise InadmissibleMaterialError(f"nu_t must satisfy -1 < nu_t < 1, got nu_t = {nu_t}")
     if not np.isfinite(nu_tl):
         raise InadmissibleMaterialError(f"nu_tl must be finite, got nu_tl = {nu_tl}")
-    margin = 1.0 - nu_t - 2.0 * nu_tl**2 * E_l / E_t
+    bound = np.sqrt((1.0 - nu_t) * E_t / (2.0 * E_l))  # |nu_tl| < bound, without squaring a huge nu_tl
+    margin = 1.0 - nu_t - 2.0 * float(nu_tl) ** 2 * E_l / E_t if abs(nu_tl) < 2.0 * bound else -np.inf
     if margin <= 0:
         raise InadmissibleMaterialError(
             "transverse isotropy requires 1 - nu_t - 2 nu_tl² E_l/E_t > 0, got "
-            f"{margin:.4g} (nu_t = {nu_t}, nu_tl = {nu_tl}, E_l/E_t = {E_l / E_t:.4g})"
+            f"{margin:.4g} (nu_t = {nu_t}, nu_tl = {nu_tl}, E_l/E_t = {E_l / E_t:.4g}: |nu_tl| < {bound:.4g})"
         )
 
 

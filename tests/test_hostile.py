@@ -239,6 +239,14 @@ ISO = 'material = "isotropic"\nE = 1e6\nnu = 0.3\nrho = 1000.0\n'
     (lambda s: s.replace(ISO, FOAM.replace("density = 0.18", 'density = {function = "sys:exit"}')).replace(
         "[loads]", '[orientation]\nkind = "uniform"\ndirection = [1.0, 0.0, 0.0]\n[loads]'),
      "regions.beam.density: sys:exit(x) raised SystemExit"),
+    (lambda s: s.replace("E = 1e6", "E = 1e300"),
+     "regions.beam.E: 1e+300 is out of range; valid: a modulus in (0, 1e+13] Pa"),
+    (lambda s: s.replace(ISO, TI_BAD.replace("nu_tl = 0.9", "nu_tl = 0.3").replace("G_l = 3e5", "G_l = 2e13")),
+     "regions.beam.G_l: 20000000000000.0 is out of range; valid: a modulus in (0, 1e+13] Pa"),
+    (lambda s: s.replace(ISO, TI_BAD.replace("nu_tl = 0.9", "nu_tl = 1e300")),
+     "regions.beam.nu_t (with nu_tl, E_l, E_t): transverse isotropy requires"),
+    (lambda s: s.replace(ISO, FOAM.replace("E_solid = 1e6", "E_solid = 1e300")),
+     "regions.beam.E_solid: 1e+300 is out of range; valid: a modulus in (0, 1e+13] Pa"),
     (lambda s: s.replace("increments = 1", "increments = 9223372036854775807"),
      "steps[0].increments: 9223372036854775807 is out of range; valid: an integer <= 10000"),
     (lambda s: s.replace('name = "hostile"', f'name = "{"n" * 10000}"'),
@@ -975,3 +983,75 @@ def test_a_huge_value_is_not_echoed_back_whole(work, capsys):
                                                                      '[loads]'))
     status, err = status_of([fenicsfoam_main, "run", str(work / "scene.toml"), "--out", str(work / "out")], capsys)
     assert status == 2 and "fem.petsc.snes_type" in err and "characters left out" in err and len(err) < 3000
+
+
+# --------------------------------------------------------------------------------------------------
+# A homogenized stiffness that is singular: the solid does not percolate
+# --------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("discretization", ["rotated", "spectral", "hex8"])
+def test_homogenize_fft_refuses_a_singular_stiffness_unless_allowed(discretization):
+    """Isolated solid blocks in void carry no load: C = 0 within the tolerance, refused; a laminate passes."""
+    from foambase.errors import FenicsfoamError
+    from homogenization.fft import SingularStiffnessError, homogenize_fft
+    from homogenization.tensors import isotropic_voigt
+
+    materials = [np.zeros((6, 6)), isotropic_voigt(1.0, 0.3)]
+    blocks = np.zeros((8, 8, 8), np.int8)
+    blocks[1:5, 1:5, 1:5] = 1
+    kwargs = dict(discretization=discretization, tol=1e-4, threads=1)
+    with pytest.raises(SingularStiffnessError, match=r"smallest eigenvalue.*does not percolate.*allow_singular") \
+            as info:
+        homogenize_fft(blocks, materials, **kwargs)
+    assert isinstance(info.value, FenicsfoamError) and info.value.exit_code == 1
+    # returned on request: C is zero within the tolerance (the stiffest phase's largest eigenvalue is 2.5)
+    r = homogenize_fft(blocks, materials, allow_singular=True, **kwargs)
+    assert np.abs(r.C).max() < 1e-4 * 2.5
+    # the same solid fraction connected along x only (rods): still singular (no transverse stiffness)
+    rods = np.zeros((8, 8, 8), np.int8)
+    rods[:, 1:5, 1:5] = 1
+    with pytest.raises(SingularStiffnessError):
+        homogenize_fft(rods, materials, **kwargs)
+    # a percolating porous solid (a cubic void inclusion) is positive definite and passes
+    porous = 1 - blocks
+    r = homogenize_fft(porous, materials, **kwargs)
+    assert np.linalg.eigvalsh(r.C).min() > 1e-2
+
+
+@pytest.mark.parametrize("text, message", [
+    ("", r"samples\.csv: empty file, no header; expected the columns of a foam samples CSV \(density, gamma, seed"),
+    ("gamma,seed,E1\n1.0,0,0.1\n", r"samples\.csv: no column 'density' \(nor 'measured_density'"),
+    (None, r"samples\.csv: line 3, column 'E1': 'abc' is not a finite number"),
+])
+def test_uncertainty_samples_without_a_column_or_empty_are_named_before_any_run(work, capsys, text, message):
+    from homogenization.tables import table_paths
+
+    if text is None:  # the shipped samples with one value spoilt
+        lines = table_paths("cube")["samples"].read_text().splitlines()[:3]
+        header = lines[0].split(",")
+        row = lines[2].split(",")
+        row[header.index("E1")] = "abc"
+        text = "\n".join([lines[0], lines[1], ",".join(row)]) + "\n"
+    (work / "samples.csv").write_text(text)
+    (work / "scene.toml").write_text(scene_text().replace(ISO, FOAM).replace(
+        "[loads]", '[orientation]\nkind = "uniform"\ndirection = [1.0, 0.0, 0.0]\n[loads]'))
+    status, err = status_of([fenicsfoam_main, "run", str(work / "scene.toml"), "--out", str(work / "out"),
+                             "--uncertainty", "--samples", str(work / "samples.csv")], capsys)
+    assert status == 2, err
+    assert re.search(message, err) and "Traceback" not in err
+    assert not (work / "out" / "summary.json").exists()  # refused before the nominal run
+
+
+def test_material_classes_refuse_a_modulus_above_the_bound_naming_it():
+    """The API refuses what the scene refuses: a modulus above 1e13 Pa, named, before any stiffness is formed."""
+    from fenicsfoam.material import MAX_MODULUS, InadmissibleMaterialError, Isotropic, TransverseIsotropic
+    from fenicsfoam.materials import foam_material
+
+    Isotropic(E=MAX_MODULUS, nu=0.3)  # the bound itself is a modulus
+    with pytest.raises(InadmissibleMaterialError, match=r"E must be a modulus in \(0, 1e\+13\] Pa, got E = 1e\+300"):
+        Isotropic(E=1e300, nu=0.3)
+    with pytest.raises(InadmissibleMaterialError, match=r"G_l must be a modulus .* got G_l = 1e\+14"):
+        TransverseIsotropic(E_t=1e6, E_l=2e6, nu_t=0.3, nu_tl=0.3, G_l=1e14)
+    with pytest.raises(InadmissibleMaterialError, match=r"transverse isotropy requires .* nu_tl = 1e\+200"):
+        TransverseIsotropic(E_t=1e6, E_l=2e6, nu_t=0.3, nu_tl=1e200, G_l=3e5)  # no OverflowError
+    with pytest.raises(InadmissibleMaterialError, match=r"E_solid must be a modulus .* got E_solid = 1e\+300"):
+        foam_material(0.18, 1.0, 1e300, 0.3)

@@ -36,7 +36,7 @@ def test_a_varied_scene_equals_the_scene_parsed_with_the_new_value():
 
 
 @pytest.mark.parametrize("changes, message", [
-    ({"E_solid": -1.0}, r"^regions\.arms\.E_solid: -1\.0 is not a number > 0"),
+    ({"E_solid": -1.0}, r"^regions\.arms\.E_solid: -1\.0 is not a modulus in \(0, 1e\+13\] Pa"),
     ({"density:centre": 0.5}, r"^regions\.centre\.density.*outside the tabulated range \[0\.09, 0\.34\]"),
     ({"gamma:arms": 0.0}, r"^regions\.arms\.gamma: 0\.0 is not an anisotropy ratio in \(0, 1\]"),
     ({"fit": "iso"}, r"^regions\.arms\.fit: expected one of \('transverse', 'isotropic', 'paper'\)"),

@@ -13,7 +13,13 @@
 :mod:`fenicsfoam.materials` re-exports the public names (the contract). Nothing here imports dolfinx.
 """
 
-from fenicsfoam.material.constants import InadmissibleMaterialError, Isotropic, Material, TransverseIsotropic
+from fenicsfoam.material.constants import (
+    MAX_MODULUS,
+    InadmissibleMaterialError,
+    Isotropic,
+    Material,
+    TransverseIsotropic,
+)
 from fenicsfoam.material.foam import FoamCells, foam_material
 from fenicsfoam.material.kinds import GRADED_KEYS, MATERIAL_KINDS, Key, MaterialKind, tabulated_regions
 from fenicsfoam.material.moduli import MODULI_NAMES, isotropic_moduli, spencer_moduli
@@ -23,6 +29,7 @@ __all__ = [
     "FOAM_FITS",
     "GRADED_KEYS",
     "MATERIAL_KINDS",
+    "MAX_MODULUS",
     "MODULI_NAMES",
     "FoamCells",
     "FoamTable",

@@ -27,7 +27,17 @@ from homogenization.tensors import (
     transverse_isotropic_voigt,
 )
 
-__all__ = ["InadmissibleMaterialError", "Isotropic", "Material", "TransverseIsotropic"]
+__all__ = ["MAX_MODULUS", "InadmissibleMaterialError", "Isotropic", "Material", "TransverseIsotropic"]
+
+#: The largest elastic modulus accepted (Pa): about ten times diamond's Young's modulus (1.2e12 Pa). Anything
+#: larger is a typo or a unit error, and would overflow the stiffness arithmetic long before it meant anything.
+MAX_MODULUS = 1e13
+
+
+def check_modulus(name: str, value: float) -> None:
+    """Raise :class:`InadmissibleMaterialError` naming ``name`` unless ``0 < value <= MAX_MODULUS`` (Pa)."""
+    if not (np.isfinite(value) and 0.0 < value <= MAX_MODULUS):
+        raise InadmissibleMaterialError(f"{name} must be a modulus in (0, {MAX_MODULUS:g}] Pa, got {name} = {value:g}")
 
 
 def _check_density(rho: float) -> None:
@@ -42,7 +52,7 @@ class Isotropic:
     Parameters
     ----------
     E
-        Young's modulus (Pa), ``E > 0``.
+        Young's modulus (Pa), ``0 < E <= MAX_MODULUS`` (1e13 Pa).
     nu
         Poisson's ratio, ``-1 < nu < 1/2``.
     rho
@@ -56,6 +66,7 @@ class Isotropic:
 
     def __post_init__(self):
         check_isotropic(self.E, self.nu)
+        check_modulus("E", self.E)
         _check_density(self.rho)
 
     @property
@@ -98,7 +109,8 @@ class TransverseIsotropic:
         Mass density in the reference configuration (kg/m³), ``rho >= 0``; used for gravity.
 
     The constants are admissible when the compliance is positive definite:
-    ``E_t, E_l, G_l > 0``, ``-1 < nu_t < 1`` and ``1 - nu_t - 2 nu_tl² E_l/E_t > 0``
+    ``E_t, E_l, G_l > 0`` (and at most :data:`MAX_MODULUS`, 1e13 Pa), ``-1 < nu_t < 1`` and
+    ``1 - nu_t - 2 nu_tl² E_l/E_t > 0``
     (:func:`homogenization.tensors.check_transverse_isotropic`).
 
     """
@@ -112,6 +124,8 @@ class TransverseIsotropic:
 
     def __post_init__(self):
         check_transverse_isotropic(self.E_t, self.E_l, self.nu_t, self.nu_tl, self.G_l)
+        for name in ("E_t", "E_l", "G_l"):
+            check_modulus(name, getattr(self, name))
         _check_density(self.rho)
 
     @property

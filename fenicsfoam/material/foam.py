@@ -15,7 +15,13 @@ from pathlib import Path
 
 import numpy as np
 
-from fenicsfoam.material.constants import InadmissibleMaterialError, Isotropic, TransverseIsotropic
+from fenicsfoam.material.constants import (
+    MAX_MODULUS,
+    InadmissibleMaterialError,
+    Isotropic,
+    TransverseIsotropic,
+    check_modulus,
+)
 from fenicsfoam.material.moduli import MODULI_NAMES, isotropic_moduli, spencer_moduli
 from fenicsfoam.material.table import FOAM_FITS, foam_table
 from foambase.errors import InputError
@@ -65,8 +71,7 @@ def foam_material(density: float, gamma: float, E_solid: float, nu_solid: float,
     if fit not in FOAM_FITS:
         raise InputError(f"fit must be one of {FOAM_FITS}, got {fit!r}")
     label, table = resolve_table(table)
-    if not (np.isfinite(E_solid) and E_solid > 0):
-        raise InadmissibleMaterialError(f"E_solid must be > 0 Pa, got {E_solid!r}")
+    check_modulus("E_solid", E_solid)
     if not (np.isfinite(rho_solid) and rho_solid >= 0):
         raise InadmissibleMaterialError(f"rho_solid must be finite and >= 0 kg/m³, got {rho_solid!r}")
     if not np.isclose(nu_solid, NU_SOLID, rtol=0, atol=1e-12):
@@ -120,8 +125,9 @@ class FoamCells:
         if not np.isclose(self.nu_solid, NU_SOLID, rtol=0, atol=1e-12):
             raise InputError(f"region {self.name!r}: nu_solid = {self.nu_solid!r}, the foam table's solid has "
                              f"nu = {NU_SOLID}")
-        if not (np.isfinite(self.E_solid) and self.E_solid > 0):
-            raise InputError(f"region {self.name!r}: E_solid must be > 0 Pa, got {self.E_solid!r}")
+        if not (np.isfinite(self.E_solid) and 0 < self.E_solid <= MAX_MODULUS):
+            raise InputError(f"region {self.name!r}: E_solid must be a modulus in (0, {MAX_MODULUS:g}] Pa, "
+                             f"got {self.E_solid!r}")
         self.cells = np.asarray(self.cells, dtype=np.int64)
         self.density = np.broadcast_to(np.asarray(self.density, dtype=float), self.cells.shape).copy()
         self.gamma = np.broadcast_to(np.asarray(self.gamma, dtype=float), self.cells.shape).copy()

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from fenicsfoam.material.constants import Isotropic, Material, TransverseIsotropic
+from fenicsfoam.material.constants import MAX_MODULUS, Isotropic, Material, TransverseIsotropic
 from fenicsfoam.material.table import FOAM_FITS
 from foambase.errors import InputError
 
@@ -81,7 +81,9 @@ class MaterialKind:
 
 
 def _positive(name: str, required: bool = True, form: str = "number") -> Key:
-    return Key(name, required, check=lambda v: v > 0, valid="a number > 0", form=form)
+    """A modulus (Pa): ``0 < value <= MAX_MODULUS`` (larger is a typo or a unit error, and overflows)."""
+    return Key(name, required, check=lambda v: 0 < v <= MAX_MODULUS, valid=f"a modulus in (0, {MAX_MODULUS:g}] Pa",
+               form=form)
 
 
 def _density(name: str) -> Key:
