@@ -57,7 +57,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from fenicsfoam.material import MATERIAL_KINDS, tabulated_regions
+from fenicsfoam.material import MATERIAL_KINDS, MAX_MODULUS, tabulated_regions
 from fenicsfoam.scene.calibration import (
     LEGACY_TABLE,
     CalibrationError,
@@ -200,6 +200,24 @@ def _validate(data: dict[str, Any], base: Path | None, probe: str, step: str, re
     return scene, next(iter(foams.values()))
 
 
+def _check_variations(scene, E0: float, lo: float, hi: float, E_range) -> None:
+    """Every E_solid the calibration may run (the two first runs, the ends of the search) is one the scene takes.
+
+    The root find stays in ``[lo, hi]`` and a foam region's other constants do not change, so the ends stand for
+    every value between them: a refusal is named before any run, not after the first ones.
+    """
+    from fenicsfoam.scene import vary_scene
+
+    for what, E in (("the second run (2 × the initial E_solid)", 2.0 * E0),
+                    (f"the {'default search range' if E_range is None else 'E_range'}'s lower end", lo),
+                    (f"the {'default search range' if E_range is None else 'E_range'}'s upper end", hi)):
+        try:
+            vary_scene(scene, {"E_solid": E})
+        except ValueError as exc:  # SceneError, InadmissibleMaterialError
+            raise CalibrationError(f"E_solid = {E:.6g} Pa, {what}, is refused by scene {scene.name!r} before any "
+                                   f"run: {exc}") from exc
+
+
 class _Runs:
     """Memoised probe values ``p(E_solid)`` from runs of the scene varied in ``E_solid`` (:func:`vary_scene`)."""
 
@@ -275,9 +293,11 @@ def calibrate_E_solid(source, probe: str, step: str, target: float, *, relative_
     data, base = _load_raw(source)
     scene, E0 = _validate(data, base, probe, step, relative_to, target, component)
     target = float(target)
-    lo, hi = (E0 * 1e-3, E0 * 1e3) if E_range is None else (float(E_range[0]), float(E_range[1]))
+    lo, hi = ((E0 * 1e-3, min(E0 * 1e3, MAX_MODULUS)) if E_range is None
+              else (float(E_range[0]), float(E_range[1])))
     if not (0 < lo < hi and math.isfinite(hi)):
         raise CalibrationError(f"E_range {E_range!r} must be two increasing positive moduli (Pa)")
+    _check_variations(scene, E0, lo, hi, E_range)
     runs = _Runs(scene, probe, step, relative_to, comm, component)
     what = (f"{probe}" + (f" ({component})" if component else "") + f" at step {step!r}"
             + (f" relative to {relative_to!r}" if relative_to else ""))

@@ -1055,3 +1055,29 @@ def test_material_classes_refuse_a_modulus_above_the_bound_naming_it():
         TransverseIsotropic(E_t=1e6, E_l=2e6, nu_t=0.3, nu_tl=1e200, G_l=3e5)  # no OverflowError
     with pytest.raises(InadmissibleMaterialError, match=r"E_solid must be a modulus .* got E_solid = 1e\+300"):
         foam_material(0.18, 1.0, 1e300, 0.3)
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--E-range", "1e6", "1e14"], r"E_solid = 1e\+14 Pa, the E_range's upper end, is refused by scene 'hostile' "
+                                   r"before any run: regions\.beam\.E_solid: 100000000000000\.0 is not a modulus "
+                                   r"in \(0, 1e\+13\] Pa"),
+    (["--E-range", "1e-3", "1e7"], None),  # the lower end is a modulus: the search range is accepted
+])
+def test_calibrate_checks_every_modulus_it_may_run_before_the_first_run(work, capsys, monkeypatch, extra, message):
+    import fenicsfoam.scene
+
+    def no_run(*args, **kwargs):
+        raise RuntimeError("a scene was run")
+
+    monkeypatch.setattr(fenicsfoam.scene, "run_scene", no_run)
+    (work / "scene.toml").write_text(scene_text().replace(ISO, FOAM).replace(
+        "[loads]", '[orientation]\nkind = "uniform"\ndirection = [1.0, 0.0, 0.0]\n[loads]'))
+    argv = [fenicsfoam_main, "calibrate", str(work / "scene.toml"), "--probe", "tip_deflection", "--step", "gravity",
+            "--target", "-0.01", "--out", str(work / "cal"), *extra]
+    if message is None:  # the checks pass: the first run is reached
+        with pytest.raises(RuntimeError, match="a scene was run"):
+            argv[0](argv[1:])
+        return
+    status, err = status_of(argv, capsys)
+    assert status == 2, err
+    assert re.search(message, err) and "Traceback" not in err
