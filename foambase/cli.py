@@ -43,6 +43,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from foambase import signals
 from foambase.errors import EXIT_FAILURE, EXIT_OK, FenicsfoamError, exit_code
 from foambase.files import UNCLOSABLE
 from foambase.logs import launcher_rank, setup_logging
@@ -177,14 +178,24 @@ def _exit_without_cleanup(code: int) -> None:
 
 
 def _dispatch(own_parser: argparse.ArgumentParser, command: Command, args: argparse.Namespace) -> int:
+    def interrupted_line(signal_name: str) -> None:  # the signal backstop ended a main thread stuck in compiled code
+        sys.stdout.flush()  # what the command printed (a run's table of the steps done) comes first
+        if launcher_rank() == 0:
+            print(f"{own_parser.prog}: interrupted by {signal_name} (the main thread was inside a compiled call and "
+                  f"was stopped {signals.FORCE_S:g} s after the signal)", file=sys.stderr, flush=True)
+
     try:
         with interruptible():
-            if command.check is not None:
-                command.check(own_parser, args)
+            signals.register_last_resort(interrupted_line)  # the first registered: it runs last
             try:
-                status = command.run(args)
-            except SystemExit as exc:  # sys.exit inside the work (e.g. a user's function): not a success
-                raise exited(exc, "the command did not finish") from exc
+                if command.check is not None:
+                    command.check(own_parser, args)
+                try:
+                    status = command.run(args)
+                except SystemExit as exc:  # sys.exit inside the work (e.g. a user's function): not a success
+                    raise exited(exc, "the command did not finish") from exc
+            finally:
+                signals.discard_last_resort(interrupted_line)
     except FenicsfoamError as error:
         code = exit_code(error)
         if not failed_together(code):  # the other ranks wait in a collective call: stop them, say why here

@@ -15,7 +15,8 @@ interruption removes whatever is still registered as it leaves :func:`interrupti
 A main thread busy in one long call of compiled code (a sparse factorization, a large assembly) does not run Python
 for minutes, so the watcher also ends the process for it: ``FORCE_S`` after the signal, if the main thread has still
 not reacted, the last-resort actions registered with :func:`register_last_resort` run in the watcher thread (a scene
-run marks its ``summary.json`` interrupted and prints the steps done) and the process exits with ``128 + signal
+run marks its ``summary.json`` interrupted and prints the steps done, then the command line prints its usual
+"interrupted by SIGNAL" line) and the process exits with ``128 + signal
 number`` at once (``os._exit``).
 """
 
@@ -71,7 +72,10 @@ def discard_temporary(path: str | os.PathLike) -> None:
 
 
 def register_last_resort(action: Callable[[str], None]) -> None:
-    """Run ``action(signal name)`` in the watcher thread if the main thread is stuck ``FORCE_S`` after a signal."""
+    """Run ``action(signal name)`` in the watcher thread if the main thread is stuck ``FORCE_S`` after a signal.
+
+    The actions run in the reverse order of their registration (the last registered first), as exit handlers do.
+    """
     with _lock:
         _last_resort.append(action)
 
@@ -121,7 +125,7 @@ def _watch(fd: int, stop: threading.Event) -> None:
                 continue
             name = signal.Signals(received[0]).name
             with _lock:
-                actions = list(_last_resort)
+                actions = list(reversed(_last_resort))  # the innermost first: a command's closing line comes last
             for action in actions:
                 try:
                     action(name)

@@ -16,6 +16,7 @@ import signal
 import stat
 import subprocess
 import sys
+import textwrap
 import time
 from pathlib import Path
 
@@ -1081,3 +1082,37 @@ def test_calibrate_checks_every_modulus_it_may_run_before_the_first_run(work, ca
     status, err = status_of(argv, capsys)
     assert status == 2, err
     assert re.search(message, err) and "Traceback" not in err
+
+
+def test_a_command_ended_by_the_signal_backstop_prints_the_interrupted_line_last(tmp_path):
+    """A main thread stuck in compiled code is ended by the watcher: the command's own last resort (a run's table)
+    is printed first, then the usual "PROG COMMAND: interrupted by SIGNAL" line; exit 128 + signal number."""
+    script = tmp_path / "stuck.py"
+    script.write_text(textwrap.dedent("""
+        import hashlib, sys
+        from foambase import cli, signals
+        signals.FORCE_S = 1.0  # the backstop's deadline, shortened for the test
+
+        def run(args):
+            signals.register_last_resort(lambda name: print(f"TABLE of the steps done ({name})", flush=True))
+            print("ready", flush=True)
+            hashlib.pbkdf2_hmac("sha256", b"x", b"y", 10**9)  # minutes in C without running Python
+
+        command = cli.Command("stuck", "a command stuck in compiled code", lambda parser: None, run)
+        sys.exit(cli.dispatch(cli.build_parser("prog", "test", [command]), ["stuck"]))
+        """))
+    process = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True, start_new_session=True)
+    try:
+        assert process.stdout.readline().strip() == "ready"
+        time.sleep(0.2)
+        process.send_signal(signal.SIGINT)
+        out, err = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.communicate()
+    assert process.returncode == 130, err
+    assert "TABLE of the steps done (SIGINT)" in out
+    assert re.search(r"^prog stuck: interrupted by SIGINT \(the main thread was inside a compiled call and was "
+                     r"stopped 1 s after the signal\)$", err, re.M) and "Traceback" not in err
