@@ -249,13 +249,14 @@ def run_job(size: dict, job: dict, cache: dict) -> list[dict]:
         cache[image_key] = foam.voxelize(job["N"]).astype(np.int8)
     if job["kind"] == "rve":
         r = homogenize_fft(cache.pop(image_key), [0.0 * solid, solid], tol=size["rve_tol"], threads=1,
-                           raise_on_failure=False)
+                           raise_on_failure=False, allow_singular=True)  # a singular C: NaN constants below
         return [{**common, "n_cells": n_cells, "N": job["N"], "seed": seed, "wall_s": r.wall_s,
                  "converged": r.converged, **dict(zip(CONSTANTS, constants_or_nan(r.C)))}]
 
     tols = [t for t in size["tols"] if t >= job["tol"]]
     r = homogenize_fft(cache[image_key], [job["void"] * solid, solid], discretization=job["discretization"],
-                       tol=job["tol"], maxiter=job["maxiter"], threads=1, checkpoints=tols, raise_on_failure=False)
+                       tol=job["tol"], maxiter=job["maxiter"], threads=1, checkpoints=tols, raise_on_failure=False,
+                       allow_singular=True)  # a coarse foam that does not percolate: NaN constants (constants_or_nan)
     rows = []
     for point in r.info["checkpoints"]:
         rows.append({**common, "N": job["N"], "discretization": job["discretization"], "void": job["void"],
