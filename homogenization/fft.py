@@ -871,8 +871,10 @@ def homogenize_fft(
 
 #: A C whose smallest eigenvalue is at most ``SINGULAR_RTOL × tol × λmax(stiffest phase)`` is refused as singular
 #: (:func:`homogenize_fft`, ``allow_singular``): a relative residual ``tol`` determines the mean stresses to about
-#: ``tol × λmax``, so an eigenvalue a hundred times below that is zero within the solver's tolerance.
-SINGULAR_RTOL = 1e-2
+#: ``tol × λmax``, so an eigenvalue a thousand times below that is zero within the solver's tolerance. The softest
+#: foam of the shipped tables (the polyhedral foam at density 0.18, γ = 0.1) has 0.025 × tol × λmax: the bound
+#: leaves it a factor 25.
+SINGULAR_RTOL = 1e-3
 
 
 def _check_not_singular(run: _Run, result: HomogenizationResult) -> None:

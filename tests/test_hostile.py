@@ -999,7 +999,8 @@ def test_homogenize_fft_refuses_a_singular_stiffness_unless_allowed(discretizati
     materials = [np.zeros((6, 6)), isotropic_voigt(1.0, 0.3)]
     blocks = np.zeros((8, 8, 8), np.int8)
     blocks[1:5, 1:5, 1:5] = 1
-    kwargs = dict(discretization=discretization, tol=1e-4, threads=1)
+    # (spectral at tol = 1e-4 leaves a positive definite junk C at 3e-3 tol: checked at 1e-6, see the docs)
+    kwargs = dict(discretization=discretization, tol=1e-6 if discretization == "spectral" else 1e-4, threads=1)
     with pytest.raises(SingularStiffnessError, match=r"smallest eigenvalue.*does not percolate.*allow_singular") \
             as info:
         homogenize_fft(blocks, materials, **kwargs)
