@@ -215,19 +215,31 @@ class NodalWorkspace:
 
     def precondition(self) -> float:
         """``q ← K_I⁻¹ r`` by FFT; returns ``rᵀ K_I⁻¹ r`` (this rank's share of the spectrum)."""
-        t0 = time.perf_counter()
-        if self.pfft is None:
-            self._forward.execute()
-        else:
-            for c in range(3):
-                self.pfft.forward(self.r[c], self.hat[c], normalize=False)
-        self.fft_s += time.perf_counter() - t0
-        self.fft_calls += 1
+        self._transform(forward=True)
         _, N2loc, Hloc = self.hat.shape[1:]
         H = self.shape[2] // 2 + 1
-        k_lo = self.spec[2].start
         nyquist = self.shape[2] % 2 == 0 and H > 1
-        scale = 1.0 / self.size
+        kernel = self._green_kernel(N2loc, Hloc, H, self.spec[2].start, nyquist, 1.0 / self.size)
+        rz = float(self._run(kernel, self.spec_ranges)[0])
+        self._transform(forward=False)
+        return rz
+
+    def _transform(self, forward: bool) -> None:
+        """``hat ← FFT(r)`` or ``q ← FFT⁻¹(hat)`` (unnormalised), timed in ``fft_s``."""
+        t0 = time.perf_counter()
+        if self.pfft is None:
+            (self._forward if forward else self._backward).execute()
+        elif forward:
+            for c in range(3):
+                self.pfft.forward(self.r[c], self.hat[c], normalize=False)
+        else:
+            for c in range(3):
+                self.pfft.backward(self.hat[c], self.q[c])
+        self.fft_s += time.perf_counter() - t0
+        self.fft_calls += 1
+
+    def _green_kernel(self, N2loc: int, Hloc: int, H: int, k_lo: int, nyquist: bool, scale: float):
+        """``kernel(a, b)``: ``hat ← K_I⁻¹ hat`` on the spectrum planes ``a … b − 1``; returns ``[rᵀ K_I⁻¹ r]``."""
         if self.native is not None:
             ffi, lib = self.native
             ptr = lambda a: ffi.cast("double *", a.ctypes.data)  # noqa: E731
@@ -241,16 +253,7 @@ class NodalWorkspace:
         else:
             def kernel(a, b):
                 return _green_numpy(self, a, b, scale, nyquist, k_lo, H)
-        rz = float(self._run(kernel, self.spec_ranges)[0])
-        t0 = time.perf_counter()
-        if self.pfft is None:
-            self._backward.execute()
-        else:
-            for c in range(3):
-                self.pfft.backward(self.hat[c], self.q[c])
-        self.fft_s += time.perf_counter() - t0
-        self.fft_calls += 1
-        return rz
+        return kernel
 
     def axpby(self, alpha: float, x: np.ndarray, beta: float, y: np.ndarray, x_ghost: int = 0,
               y_ghost: int = 0) -> None:
@@ -512,21 +515,8 @@ class Hex8Workspace(NodalWorkspace):
         sums = self._run(kernel, self.ranges)
         return float(sums[0]), sums[1:]
 
-    def precondition(self) -> float:
-        """``q ← K_I⁻¹ r`` by FFT (hex8 ``K_I``); returns ``rᵀ K_I⁻¹ r`` (this rank's share of the spectrum)."""
-        t0 = time.perf_counter()
-        if self.pfft is None:
-            self._forward.execute()
-        else:
-            for c in range(3):
-                self.pfft.forward(self.r[c], self.hat[c], normalize=False)
-        self.fft_s += time.perf_counter() - t0
-        self.fft_calls += 1
-        _, N2loc, Hloc = self.hat.shape[1:]
-        H = self.shape[2] // 2 + 1
-        k_lo = self.spec[2].start
-        nyquist = self.shape[2] % 2 == 0 and H > 1
-        scale = 1.0 / self.size
+    def _green_kernel(self, N2loc: int, Hloc: int, H: int, k_lo: int, nyquist: bool, scale: float):
+        """As :meth:`NodalWorkspace._green_kernel` with the hex8 reference stiffness ``K_I``."""
         if self.native is not None:
             ffi, lib = self.native
             ptr = lambda a: ffi.cast("double *", a.ctypes.data)  # noqa: E731
@@ -541,16 +531,7 @@ class Hex8Workspace(NodalWorkspace):
         else:
             def kernel(a, b):
                 return _hex8_green_numpy(self, a, b, scale, nyquist, k_lo, H)
-        rz = float(self._run(kernel, self.spec_ranges)[0])
-        t0 = time.perf_counter()
-        if self.pfft is None:
-            self._backward.execute()
-        else:
-            for c in range(3):
-                self.pfft.backward(self.hat[c], self.q[c])
-        self.fft_s += time.perf_counter() - t0
-        self.fft_calls += 1
-        return rz
+        return kernel
 
 
 def _hex8_apply_numpy(ws: Hex8Workspace, a: int, b: int) -> np.ndarray:
