@@ -221,7 +221,10 @@ def _dispatch(own_parser: argparse.ArgumentParser, command: Command, args: argpa
 def main(prog: str, description: str, registry: Sequence[str], argv: Sequence[str] | None = None) -> int:
     """Run ``PROG COMMAND ...`` for the commands of ``registry`` (``"module:ATTRIBUTE"`` strings)."""
     single_threaded_blas_by_default()
-    parser = build_parser(prog, description, [resolve(spec) for spec in registry])
+    try:  # the command modules import the numerical stack: seconds in which Ctrl-C is a clean stop, no traceback
+        parser = build_parser(prog, description, [resolve(spec) for spec in registry])
+    except KeyboardInterrupt:
+        return _interrupted_while_loading(prog)
     return dispatch(parser, sys.argv[1:] if argv is None else argv)
 
 
@@ -251,3 +254,10 @@ def main_single(command: Command, prog: str, argv: Sequence[str] | None = None) 
                                      formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     _command_parser(parser, command)
     return dispatch(parser, sys.argv[1:] if argv is None else argv)
+
+
+def _interrupted_while_loading(prog: str) -> int:
+    """Ctrl-C before any work: one line, nothing written, :data:`EXIT_INTERRUPTED`."""
+    if launcher_rank() == 0:
+        print(f"{prog}: interrupted while loading (nothing was done)", file=sys.stderr)
+    return EXIT_INTERRUPTED

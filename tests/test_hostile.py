@@ -1117,3 +1117,17 @@ def test_a_command_ended_by_the_signal_backstop_prints_the_interrupted_line_last
     assert "TABLE of the steps done (SIGINT)" in out
     assert re.search(r"^prog stuck: interrupted by SIGINT \(the main thread was inside a compiled call and was "
                      r"stopped 1 s after the signal\)$", err, re.M) and "Traceback" not in err
+
+
+def test_ctrl_c_while_the_commands_load_is_one_line_and_exit_130(monkeypatch, capsys):
+    # Ctrl-C in the seconds the command modules import the numerical stack: no traceback, the interrupted status
+    from fenicsfoam import cli as fenicsfoam_cli
+    from foambase import cli
+
+    def interrupted(spec):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "resolve", interrupted)
+    assert fenicsfoam_cli.main(["info"]) == cli.EXIT_INTERRUPTED
+    err = capsys.readouterr().err
+    assert "fenicsfoam: interrupted while loading" in err and "Traceback" not in err
