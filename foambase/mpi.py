@@ -91,8 +91,8 @@ def on_every_rank(comm: Any, work: Callable[[], T], what: str) -> T:
     Raises
     ------
     Exception
-        The lowest failing rank re-raises its exception; every other rank raises an error of the same exit code
-        with that rank's message (an :class:`~foambase.errors.InputError` when the failure was bad input, so
+        Every failing rank re-raises its own exception; every other rank raises an error of the same exit code
+        with the lowest failing rank's message (an :class:`~foambase.errors.InputError` when the failure was bad input, so
         that every rank reports the same kind of error).
 
     """
@@ -108,7 +108,7 @@ def on_every_rank(comm: Any, work: Callable[[], T], what: str) -> T:
     first = next((rank for rank, report in enumerate(reports) if report is not None), None)
     if first is None:
         return result
-    if comm.rank == first:
+    if failure is not None:  # a rank that failed itself raises its own error (its type, e.g. a SceneError)
         raise failure
     full, message, code = reports[first]
     error = (InputError(message) if code == EXIT_INPUT else
