@@ -92,8 +92,8 @@ def on_every_rank(comm: Any, work: Callable[[], T], what: str) -> T:
     ------
     Exception
         Every failing rank re-raises its own exception; every other rank raises an error of the same exit code
-        with the lowest failing rank's message (an :class:`~foambase.errors.InputError` when the failure was bad input, so
-        that every rank reports the same kind of error).
+        with the lowest failing rank's message (an :class:`~foambase.errors.InputError` when the failure was bad
+        input, so that every rank reports the same kind of error).
 
     """
     result, failure = None, None
