@@ -30,7 +30,8 @@ Run: ``python studies/tripod_peer.py converge --out DIR [--cases A B] [--models 
 [--p1 0.008 0.0052 0.0035] [--p2 0.010 0.008 0.006]
 [--p2-models corotational corotational_sofa] [--ci]``; ``python studies/tripod_peer.py krylov --out DIR --h 0.0052
 [--degree 1] [--variants default restart300 ...]``. Rows go to ``DIR/tripod_peer_converge.csv`` (and
-``tripod_peer_convergence.csv``) or ``DIR/tripod_peer_krylov.csv``.
+``tripod_peer_convergence.csv``) or ``DIR/tripod_peer_krylov_*.csv``; ``python studies/tripod_peer.py table
+CSV... [--out DIR]`` merges the rows of several ``converge`` runs and prints their convergence table.
 """
 
 from __future__ import annotations
@@ -76,6 +77,9 @@ KRYLOV_VARIANTS: dict[str, dict] = {
     "mffd_ds": {"mat_mffd_type": "ds"},
     # right preconditioning: GMRES minimises the true residual, not the preconditioned one
     "right": {"ksp_pc_side": "right", "ksp_gmres_restart": 300, "ksp_max_it": 300},
+    # a line search on the residual norm (l2: secant on ‖F‖²) keeps Newton's iterates nearer the path
+    "l2": {"snes_linesearch_type": "l2"},
+    "bt": {"snes_linesearch_type": "bt"},
 }
 
 
@@ -248,10 +252,7 @@ def converge(args, comm) -> int:
     if args.ci:
         failures += elements_agree(rows)
     if comm.rank == 0:
-        for c in table:
-            print(f"case {c['case']} {c['model']:17s} P{c['degree']} {c['quantity']:14s} h {c['h_mm']:14s} mm: "
-                  f"{c['values']:24s} order {c['order']:5.2f} Richardson {c['richardson']:8.3f} "
-                  f"last change {c['last_change']:.2%}", flush=True)
+        print_convergence(table)
         for case in args.cases:
             t = table_i_changes(SCENES[case])
             for k, who in enumerate(("paper's simulation", "real robot")):
@@ -279,6 +280,35 @@ def krylov(args, comm) -> int:
     return report_checks(self_check() if comm.rank == 0 else [], comm)
 
 
+def print_convergence(table: list[dict]) -> None:
+    for c in table:
+        print(f"case {c['case']} {c['model']:17s} P{c['degree']} {c['quantity']:14s} h {c['h_mm']:14s} mm: "
+              f"{c['values']:24s} order {c['order']:5.2f} Richardson {c['richardson']:8.3f} "
+              f"last change {c['last_change']:.2%}", flush=True)
+
+
+def tabulate(args) -> int:
+    """The convergence table of the rows of earlier ``converge`` runs (their CSV files), merged."""
+    rows = []
+    for path in args.csv:
+        with open(path, newline="") as f:
+            for r in csv.DictReader(f):
+                row = {k: v for k, v in r.items() if v != ""}
+                for k in ("h_mm", *QUANTITIES):
+                    if k in row:
+                        row[k] = float(row[k])
+                for k in ("degree", "n_cells"):
+                    if k in row:
+                        row[k] = int(row[k])
+                rows.append(row)
+    table = convergence(rows)
+    print_convergence(table)
+    if args.out is not None:
+        args.out.mkdir(parents=True, exist_ok=True)
+        write_csv(table, args.out / "tripod_peer_convergence.csv")
+    return report_checks(self_check(), MPI.COMM_SELF)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("-v", "--verbose", action="count", default=0)
@@ -300,6 +330,9 @@ def main(argv=None) -> int:
     k.add_argument("--h", type=float, default=0.0052)
     k.add_argument("--degree", type=int, default=1, choices=[1, 2])
     k.add_argument("--variants", nargs="+", default=list(KRYLOV_VARIANTS))
+    t = sub.add_parser("table", help="the convergence table of earlier converge runs' CSV files, merged")
+    t.add_argument("csv", type=Path, nargs="+")
+    t.add_argument("--out", type=Path)
     args = parser.parse_args(argv)
     setup_logging(args.verbose)
     comm = MPI.COMM_WORLD
@@ -307,6 +340,8 @@ def main(argv=None) -> int:
         if args.ci:
             args.cases, args.models, args.p1, args.p2 = ["B"], ["corotational", "corotational_sofa"], [0.010], []
         return converge(args, comm)
+    if args.command == "table":
+        return tabulate(args)
     return krylov(args, comm)
 
 
