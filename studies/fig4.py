@@ -372,8 +372,9 @@ def hybrid_image(n_cells: int, density: float, gamma: float, seed: int, shape, s
     polyhedral wall foam's level set ``ψ ≤ r_w`` (:func:`wall_field`), ``r_w`` chosen so that the union holds
     exactly ``ceil(density × voxels)`` voxels (up to ties of ``ψ``): the walls take the rest of the density outside
     the struts (at ``strut_fraction`` 1 there are no walls, and the struts hold the density to within one shell of
-    ties of the skeleton distance). ``strut_fraction`` 0 is the wall foam on these voxels, 1 the ``edge`` candidate. ``fields``
-    (``{"skeleton": distances, "psi": ψ}``, from an earlier call on the same grid) saves recomputing them.
+    ties of the skeleton distance). ``strut_fraction`` 0 is the wall foam on these voxels, 1 the ``edge``
+    candidate. ``fields`` (``{"skeleton": distances, "psi": ψ}``, from an earlier call on the same grid) saves
+    recomputing them.
     Returns the bool image and ``{"measured_density", "strut_density" (of the struts alone), "wall_radius",
     "strut_radius"}``.
     """
