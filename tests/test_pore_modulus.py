@@ -25,14 +25,14 @@ def test_sweep_with_stiff_pores_is_the_fft_of_its_image_with_that_pore_phase_and
     assert tables.SweepSettings(box="equiaxed", distance="polyhedral", pore_modulus=0.0045).name == \
         "equiaxed_polyhedral_pores0p0045"
     tables.table_paths("equiaxed_polyhedral_pores0p0045")  # a valid table name
-    [a] = tables.run_sweep([sample], void, tmp_path, MPI.COMM_SELF, progress=False, threads=1)
     [b] = tables.run_sweep([sample], pores, tmp_path, MPI.COMM_SELF, progress=False, threads=1)
-    assert "pore_modulus" not in a and b["pore_modulus"] == 0.01
-    # the row is the FFT of the foam's image with the pore phase (an independent call), and stiffer than void
+    assert b["pore_modulus"] == 0.01
+    # the row is the FFT of the foam's image with the pore phase (an independent call), stiffer than with void
     img = VoronoiFoam(3, 0.3, 1.0, seed=1).voxelize(12).astype(np.int8)
     C = homogenize_fft(img, [isotropic_voigt(0.01, 0.3), isotropic_voigt(1.0, 0.3)], tol=1e-6, threads=1).C
     assert b["C11"] == pytest.approx(C[0, 0], rel=1e-12) and b["C44"] == pytest.approx(C[3, 3], rel=1e-12)
-    assert b["C11"] > a["C11"] and b["C44"] > a["C44"]
+    C0 = homogenize_fft(img, [np.zeros((6, 6)), isotropic_voigt(1.0, 0.3)], tol=1e-6, threads=1).C
+    assert b["C11"] > C0[0, 0] and b["C44"] > C0[3, 3]
     [again] = tables.run_sweep([sample], pores, tmp_path, MPI.COMM_SELF, progress=False, threads=1)
     assert again == b  # read back from the cache
     assert tables.settings_from_row(b) == pores and tables.settings_dict(pores)["pore_modulus"] == 0.01
