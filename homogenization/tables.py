@@ -121,6 +121,13 @@ class SweepSettings:
         (fully integrated trilinear voxels, from above; fewer CG iterations on void foams). A ``hex8`` sweep's
         table name ends in ``_hex8``, its cache entries carry it in their names and hash, and its rows hold a
         ``discretization`` column.
+    pore_modulus
+        Young's modulus of the pores over the solid's (ν the solid's); 0 (default): void pores, the printed foam's
+        air. A positive value in ``[1e-6, 0.5]`` gives the pores that stiffness, as a homogenization that needs
+        a positive-definite phase everywhere does; the polyhedral wall foam reproduces the paper's Fig. 4 with
+        0.0045 (docs/validation/2026-11-27-fig4.md, section 7). Its table name ends in ``_pores<value>`` (``.``
+        written ``p``: ``_pores0p0045``), its cache entries carry it in their names and hash, its rows hold a
+        ``pore_modulus`` column.
 
     """
 
@@ -132,6 +139,7 @@ class SweepSettings:
     maxiter: int | None = None
     cubic: bool = True
     discretization: str = "rotated"
+    pore_modulus: float = 0.0
 
     @property
     def name(self) -> str:
@@ -139,7 +147,7 @@ class SweepSettings:
 
         ``"cube"`` for the Euclidean foam in the unit cube, else ``<box>`` (Euclidean) or ``<box>_<distance>``.
         """
-        suffix = "" if self.discretization == "rotated" else f"_{self.discretization}"
+        suffix = ("" if self.discretization == "rotated" else f"_{self.discretization}") + _pores_label(self)
         if (self.box, self.distance) == ("cube", "euclidean"):
             return "cube" + suffix
         return (self.box if self.distance == "euclidean" else f"{self.box}_{self.distance}") + suffix
@@ -168,6 +176,18 @@ class SweepSettings:
             raise InputError(f"tol must lie in (0, 1), got {self.tol!r}")
         if self.discretization not in SWEEP_DISCRETIZATIONS:
             raise InputError(f"discretization must be one of {SWEEP_DISCRETIZATIONS}, got {self.discretization!r}")
+        e = self.pore_modulus
+        if isinstance(e, bool) or not isinstance(e, (int, float)) or not (e == 0 or 1e-6 <= e <= 0.5):
+            raise InputError(f"pore_modulus must be 0 (void pores) or a fraction of the solid's modulus in "
+                             f"[1e-6, 0.5], got {e!r}")
+        object.__setattr__(self, "pore_modulus", float(e))
+
+
+def _pores_label(settings: SweepSettings) -> str:
+    """``''`` for void pores, else ``'_pores'`` and the modulus with ``p`` for the point (``_pores0p0045``)."""
+    if settings.pore_modulus == 0:
+        return ""
+    return "_pores" + f"{settings.pore_modulus:.6f}".rstrip("0").replace(".", "p")
 
 
 def _parse_grid(value) -> tuple[int, int, int] | None:
@@ -195,7 +215,8 @@ def settings_from_row(row: dict) -> SweepSettings:
         resolution = int(float(resolution))
     return SweepSettings(n_cells=int(row["n_cells"]), resolution=resolution, tol=float(row["tol"]), box=row["box"],
                          distance=row["distance"], cubic=cubic,
-                         discretization=row.get("discretization", "rotated") or "rotated")
+                         discretization=row.get("discretization", "rotated") or "rotated",
+                         pore_modulus=float(row.get("pore_modulus", 0.0) or 0.0))
 
 
 @dataclass(frozen=True, order=True)
@@ -291,6 +312,8 @@ def _cache_key(sample: Sample, settings: SweepSettings) -> dict:
         key["cubic"] = False
     if settings.discretization != "rotated":  # likewise absent for the rotated scheme
         key["discretization"] = settings.discretization
+    if settings.pore_modulus != 0:  # and for void pores
+        key["pore_modulus"] = repr(float(settings.pore_modulus))
     return key
 
 
@@ -301,7 +324,7 @@ def cache_name(sample: Sample, settings: SweepSettings) -> str:
     """
     foam = "" if (settings.box, settings.distance) == ("cube", "euclidean") else f"{settings.distance}_{settings.box}_"
     digest = hashlib.sha256(json.dumps(_cache_key(sample, settings), sort_keys=True).encode()).hexdigest()[:12]
-    kind = "" if settings.discretization == "rotated" else f"_{settings.discretization}"
+    kind = ("" if settings.discretization == "rotated" else f"_{settings.discretization}") + _pores_label(settings)
     return (f"{foam}d{sample.density:.4f}_g{sample.gamma:.4f}_s{sample.seed}_n{settings.n_cells}"
             f"_N{_resolution_label(settings)}_tol{settings.tol:.1e}{kind}_{digest}.json")
 
@@ -433,7 +456,8 @@ def homogenize_sample(sample: Sample, settings: SweepSettings, threads: int | No
     foam = VoronoiFoam(settings.n_cells, sample.density, sample.gamma, seed=sample.seed,
                        box=None if settings.box == "cube" else settings.box, distance=settings.distance)
     image = foam.voxelize(settings.resolution, cubic=settings.cubic).astype(np.int8)
-    r = homogenize_fft(image, [np.zeros((6, 6)), isotropic_voigt(1.0, NU_SOLID)], scheme=SCHEME,
+    pores = isotropic_voigt(settings.pore_modulus, NU_SOLID) if settings.pore_modulus else np.zeros((6, 6))
+    r = homogenize_fft(image, [pores, isotropic_voigt(1.0, NU_SOLID)], scheme=SCHEME,
                        discretization=settings.discretization, tol=settings.tol, threads=threads, box=tuple(foam.box),
                        maxiter=settings.maxiter, comm=comm)
     row = {"density": sample.density, "gamma": sample.gamma, "seed": sample.seed, "distance": settings.distance,
@@ -450,6 +474,8 @@ def homogenize_sample(sample: Sample, settings: SweepSettings, threads: int | No
     out = {k: row[k] for k in SAMPLE_COLUMNS}
     if settings.discretization != "rotated":  # the rotated scheme's rows (the shipped tables) have no such column
         out["discretization"] = settings.discretization
+    if settings.pore_modulus != 0:  # nor the void-pore rows
+        out["pore_modulus"] = settings.pore_modulus
     return out
 
 

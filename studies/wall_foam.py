@@ -21,10 +21,10 @@ choice, checked by ``resolution``.
     Every ``--density`` × one grid per γ (``--grid``, the last given for a γ wins), seeds ``--seeds`` (default
     0 1 2), in one resumable run: with ``--reference-density REF`` each ``--grid`` is the grid at ``REF``, scaled
     at the other densities by :func:`homogenization.tables.scaled_resolution` (constant voxels across a wall).
-    Writes one table ``equiaxed_polyhedral`` (``_hex8`` with ``--discretization hex8``,
-    :attr:`SweepSettings.name`) over the whole grid with its samples and provenance (every node's settings)
-    under ``--out``, and with ``--ship`` into ``homogenization/data``. Exits 1 if a sample misses its density by
-    more than 0.002.
+    Writes one table ``equiaxed_polyhedral`` (``_hex8`` with ``--discretization hex8``, ``_pores0p0045`` with
+    ``--pore-modulus 0.0045``: pores of that stiffness, :attr:`SweepSettings.name`) over the whole grid with its
+    samples and provenance (every node's settings) under ``--out``, and with ``--ship`` into
+    ``homogenization/data``. Exits 1 if a sample misses its density by more than 0.002.
 ``merge``
     ``--from DIR [DIR ...]``: the tables of earlier ``table`` runs merged into one under ``--out``
     (:func:`homogenization.tables.merge_tables`; refuses a (density, γ) node at different settings in two runs).
@@ -79,7 +79,8 @@ def parse_seeds(text: str) -> tuple[float, list[int]]:
 def settings_for(grid, a) -> tables.SweepSettings:
     cubic = not isinstance(grid, tuple)
     return tables.SweepSettings(n_cells=a.cells, resolution=grid, tol=a.tol, box="equiaxed", distance="polyhedral",
-                                maxiter=a.maxiter, cubic=cubic, discretization=a.discretization)
+                                maxiter=a.maxiter, cubic=cubic, discretization=a.discretization,
+                                pore_modulus=a.pore_modulus)
 
 
 def spacing(gamma: float, grid) -> np.ndarray:
@@ -213,6 +214,9 @@ def main(argv=None) -> int:
                         "(tables.scaled_resolution: constant voxels across a wall)")
     p.add_argument("--discretization", choices=tables.SWEEP_DISCRETIZATIONS, default="rotated",
                    help="voxels: rotated (one-point, from below) or hex8 (fully integrated, from above)")
+    p.add_argument("--pore-modulus", type=float, default=0.0,
+                   help="Young's modulus of the pores / E_s (default 0: void pores; 0.0045 reproduces the paper's "
+                        "Fig. 4, docs/validation/2026-11-27-fig4.md section 7); the table name ends in _pores...")
     p.add_argument("--from", dest="sources", type=Path, nargs="+", default=None,
                    help="merge: the table directories (--out of earlier table runs) to merge into --out")
     p.add_argument("--seeds", type=int, nargs="+", default=None, help="default 0 (resolution), 0 1 2 (table)")
