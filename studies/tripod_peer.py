@@ -72,11 +72,6 @@ KRYLOV_VARIANTS: dict[str, dict] = {
     "restart300": {"ksp_gmres_restart": 300, "ksp_max_it": 300},
     # a Newton step whose GMRES did not converge is taken anyway (PETSc stops Newton at the first by default)
     "linfail": {"snes_max_linear_solve_fail": 1000},
-    # inexact Newton: the Krylov tolerance follows the Newton residual (Eisenstat–Walker), failures tolerated
-    "ew": {"snes_ksp_ew": True, "snes_max_linear_solve_fail": 1000},
-    # the finite-difference step of the matrix-free Jacobian chosen per vector (Walker–Pernice "wp" is PETSc's
-    # default; "ds" is Dennis–Schnabel)
-    "mffd_ds": {"mat_mffd_type": "ds"},
     # right preconditioning: GMRES minimises the true residual, not the preconditioned one
     "right": {"ksp_pc_side": "right", "ksp_gmres_restart": 300, "ksp_max_it": 300},
     # a line search on the residual norm (l2: secant on ‖F‖²) keeps Newton's iterates nearer the path
