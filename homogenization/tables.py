@@ -42,7 +42,7 @@ import os
 import re
 import time
 from collections.abc import Iterable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from datetime import UTC, datetime
 from importlib import metadata
 from pathlib import Path
@@ -72,7 +72,9 @@ NU_SOLID = 0.3
 SCHEME = "pcg"
 #: The discretizations a sweep may use: the rotated scheme (one-point voxels, the shipped tables) or fully
 #: integrated trilinear voxels (``"hex8"``), both solved by the nodal Green-preconditioned CG.
-SWEEP_DISCRETIZATIONS = ("rotated", "hex8")
+SWEEP_DISCRETIZATIONS = ("rotated", "hex8", "bracket")
+#: the moduli whose rotated … hex8 bracket a ``"bracket"`` row records (``bracket_<name>``, relative half width)
+BRACKETED = ("E1", "E2", "E3", "G23", "G13", "G12", "ti_E_t", "ti_E_l", "ti_G_l", "iso_E")
 #: The shipped tables (package data).
 DATA_DIR = Path(__file__).parent / "data"
 SAMPLES_CSV = DATA_DIR / "foam_table_samples.csv"
@@ -120,7 +122,11 @@ class SweepSettings:
         ``"rotated"`` (default; one-point trilinear voxels, converging to the moduli from below) or ``"hex8"``
         (fully integrated trilinear voxels, from above; fewer CG iterations on void foams). A ``hex8`` sweep's
         table name ends in ``_hex8``, its cache entries carry it in their names and hash, and its rows hold a
-        ``discretization`` column.
+        ``discretization`` column. ``"bracket"``: both on the same voxels, the sample's ``C`` their mean, and for
+        each modulus of :data:`BRACKETED` the relative half width of the bracket, ``bracket_<name> = |q_hex8 −
+        q_rotated| / (q_hex8 + q_rotated)`` (the two converge to the moduli from opposite sides, so the midpoint's
+        resolution error is at most about that); :func:`bracket_samples` makes the same rows from a rotated and a
+        hex8 sweep of the same samples.
     pore_modulus
         Young's modulus of the pores over the solid's (ν the solid's); 0 (default): void pores, the printed foam's
         air. A positive value in ``[1e-6, 0.5]`` gives the pores that stiffness, as a homogenization that needs
@@ -457,26 +463,94 @@ def homogenize_sample(sample: Sample, settings: SweepSettings, threads: int | No
                        box=None if settings.box == "cube" else settings.box, distance=settings.distance)
     image = foam.voxelize(settings.resolution, cubic=settings.cubic).astype(np.int8)
     pores = isotropic_voigt(settings.pore_modulus, NU_SOLID) if settings.pore_modulus else np.zeros((6, 6))
-    r = homogenize_fft(image, [pores, isotropic_voigt(1.0, NU_SOLID)], scheme=SCHEME,
-                       discretization=settings.discretization, tol=settings.tol, threads=threads, box=tuple(foam.box),
-                       maxiter=settings.maxiter, comm=comm)
-    row = {"density": sample.density, "gamma": sample.gamma, "seed": sample.seed, "distance": settings.distance,
-           "box": settings.box, "n_cells": settings.n_cells, "resolution": _resolution_label(settings),
-           "tol": settings.tol,
-           "measured_density": float(foam.measured_density), "radius": float(foam.radius)}
-    row.update({name: float(r.C[int(name[1]) - 1, int(name[2]) - 1]) for name in C_ENTRIES})
-    row.update(engineering_constants(r.C))
-    ti = closest_transverse_isotropic(r.C, axis=(1.0, 0.0, 0.0))
-    row.update(ti_E_t=ti.E_t, ti_E_l=ti.E_l, ti_nu_t=ti.nu_t, ti_nu_tl=ti.nu_tl, ti_G_l=ti.G_l, ti_error=ti.error)
-    iso = closest_isotropic(r.C)
-    row.update(iso_E=iso.E, iso_nu=iso.nu, iso_error=iso.error)
-    row.update(iterations=int(sum(r.iterations)), wall_s=time.perf_counter() - start, version=_version())
+    kinds = ("rotated", "hex8") if settings.discretization == "bracket" else (settings.discretization,)
+    results = [homogenize_fft(image, [pores, isotropic_voigt(1.0, NU_SOLID)], scheme=SCHEME, discretization=kind,
+                              tol=settings.tol, threads=threads, box=tuple(foam.box), maxiter=settings.maxiter,
+                              comm=comm) for kind in kinds]
+    inputs = {"density": sample.density, "gamma": sample.gamma, "seed": sample.seed, "distance": settings.distance,
+              "box": settings.box, "n_cells": settings.n_cells, "resolution": _resolution_label(settings),
+              "tol": settings.tol, "measured_density": float(foam.measured_density), "radius": float(foam.radius)}
+    return _sample_row(inputs, settings, [r.C for r in results],
+                       iterations=int(sum(sum(r.iterations) for r in results)),
+                       wall_s=time.perf_counter() - start)
+
+
+def _moduli_of(C: np.ndarray) -> dict:
+    """The engineering constants and the TI (l along x) and isotropic fits of a Voigt stiffness."""
+    out = dict(engineering_constants(C))
+    ti = closest_transverse_isotropic(C, axis=(1.0, 0.0, 0.0))
+    out.update(ti_E_t=ti.E_t, ti_E_l=ti.E_l, ti_nu_t=ti.nu_t, ti_nu_tl=ti.nu_tl, ti_G_l=ti.G_l, ti_error=ti.error)
+    iso = closest_isotropic(C)
+    out.update(iso_E=iso.E, iso_nu=iso.nu, iso_error=iso.error)
+    return out
+
+
+def _sample_row(inputs: dict, settings: SweepSettings, stiffnesses: Sequence[np.ndarray], *, iterations: int,
+                wall_s: float) -> dict:
+    """A sample's row from its inputs and its stiffness (or, for ``"bracket"``, its rotated and hex8 ones)."""
+    C = np.mean(stiffnesses, axis=0)
+    row = dict(inputs)
+    row.update({name: float(C[int(name[1]) - 1, int(name[2]) - 1]) for name in C_ENTRIES})
+    row.update(_moduli_of(C))
+    row.update(iterations=iterations, wall_s=wall_s, version=_version())
     out = {k: row[k] for k in SAMPLE_COLUMNS}
     if settings.discretization != "rotated":  # the rotated scheme's rows (the shipped tables) have no such column
         out["discretization"] = settings.discretization
     if settings.pore_modulus != 0:  # nor the void-pore rows
         out["pore_modulus"] = settings.pore_modulus
+    if settings.discretization == "bracket":
+        low, high = (_moduli_of(c) for c in stiffnesses)
+        out.update({f"bracket_{q}": abs(high[q] - low[q]) / (high[q] + low[q]) for q in BRACKETED})
     return out
+
+
+def bracket_samples(lower: Sequence[dict], upper: Sequence[dict]) -> list[dict]:
+    """The ``"bracket"`` rows of samples computed twice, by a rotated (``lower``) and a hex8 (``upper``) sweep.
+
+    Every sample (density, γ, seed) must be in both with the same settings but the discretization; each returned
+    row is the one a ``"bracket"`` sweep of that sample gives (:class:`SweepSettings`), with the two runs'
+    iterations and wall times summed. Raises :class:`~foambase.errors.InputError` naming the first sample that is
+    missing from one side or computed at other settings, before anything is returned.
+    """
+    def by_sample(rows, kind):
+        out = {}
+        for row in rows:
+            settings = settings_from_row(row)
+            if settings.discretization != kind:
+                raise InputError(f"bracket: the {'lower' if kind == 'rotated' else 'upper'} rows must be {kind}, "
+                                 f"sample {_sample_label(row)} is {settings.discretization}")
+            out[(float(row["density"]), float(row["gamma"]), int(row["seed"]))] = (row, settings)
+        return out
+
+    low, high = by_sample(lower, "rotated"), by_sample(upper, "hex8")
+    for key in sorted(set(low) ^ set(high)):
+        side = "hex8" if key in low else "rotated"
+        raise InputError(f"bracket: sample density {key[0]}, gamma {key[1]}, seed {key[2]} has no {side} row")
+    rows = []
+    for key in sorted(low):
+        (lo, s_lo), (hi, s_hi) = low[key], high[key]
+        settings = replace(s_lo, discretization="bracket")
+        if replace(s_hi, discretization="bracket") != settings:
+            raise InputError(f"bracket: sample density {key[0]}, gamma {key[1]}, seed {key[2]} was computed at other "
+                             f"settings by the two sweeps: {settings_dict(s_lo)} vs {settings_dict(s_hi)}")
+        inputs = {k: lo[k] for k in (*INPUTS, "measured_density", "radius")}
+        rows.append(_sample_row(inputs, settings, [_stiffness(lo), _stiffness(hi)],
+                                iterations=int(lo["iterations"]) + int(hi["iterations"]),
+                                wall_s=float(lo["wall_s"]) + float(hi["wall_s"])))
+    return rows
+
+
+def _sample_label(row: dict) -> str:
+    return f"density {row['density']}, gamma {row['gamma']}, seed {row['seed']}"
+
+
+def _stiffness(row: dict) -> np.ndarray:
+    """The Voigt ``C`` of a sample row (its 21 ``C_ij`` columns)."""
+    C = np.zeros((6, 6))
+    for name in C_ENTRIES:
+        i, j = int(name[1]) - 1, int(name[2]) - 1
+        C[i, j] = C[j, i] = float(row[name])
+    return C
 
 
 def run_sweep(samples: Sequence[Sample], settings: SweepSettings, cache_dir: str | os.PathLike, comm=None, *,
@@ -564,7 +638,11 @@ def run_sweep(samples: Sequence[Sample], settings: SweepSettings, cache_dir: str
 
 
 def aggregate(rows: Sequence[dict]) -> list[dict]:
-    """Mean and sample standard deviation (``<name>_std``) over seeds for every (density, γ)."""
+    """Mean and sample standard deviation (``<name>_std``) over seeds for every (density, γ).
+
+    Rows of a ``"bracket"`` sweep add, per modulus, the widest relative half width of the bracket over the seeds
+    (``bracket_<name>``).
+    """
     groups: dict[tuple[float, float], list[dict]] = {}
     for row in rows:
         groups.setdefault((float(row["density"]), float(row["gamma"])), []).append(row)
@@ -575,6 +653,8 @@ def aggregate(rows: Sequence[dict]) -> list[dict]:
             values = np.array([float(m[name]) for m in members])
             out[name] = float(values.mean())
             out[f"{name}_std"] = float(values.std(ddof=1)) if len(values) > 1 else 0.0
+        for name in (k for k in members[0] if k.startswith("bracket_")):  # the widest bracket over the seeds
+            out[name] = max(float(m[name]) for m in members)
         table.append(out)
     return table
 
@@ -713,19 +793,40 @@ def merge_tables(sources: Sequence[str | os.PathLike], out_dir: str | os.PathLik
     """
     loaded, provenance = [], []
     for source in sources:
-        found = sorted(Path(source).glob("foam_table*_samples.csv"))
-        if len(found) != 1:
-            raise InputError(f"merge source {str(source)!r} must hold exactly one foam_table*_samples.csv, found "
-                             f"{[p.name for p in found]}")
-        loaded.append((str(source), read_samples(found[0])))
-        prov_path = found[0].with_name(found[0].name.replace("_samples.csv", "_provenance.json"))
-        try:
-            prov = json.loads(prov_path.read_text())
-        except (OSError, ValueError) as exc:
-            raise InputError(f"merge source {str(source)!r}: provenance {prov_path.name} unreadable ({exc})") from exc
+        rows, prov = _read_table_dir(source, "merge")
+        loaded.append((str(source), rows))
         provenance.append({"source": str(source), "provenance": prov})
     rows = merge_samples(loaded)
     name = settings_from_row(rows[0]).name
     merged = {"merged_from": provenance, "date": datetime.now(UTC).isoformat(timespec="seconds"),
               "n_samples": len(rows), "sample_wall_s_total": float(sum(float(r["wall_s"]) for r in rows))}
     return write_tables(rows, out_dir, merged, name)
+
+
+def _read_table_dir(source: str | os.PathLike, what: str) -> tuple[list[dict], dict]:
+    """The samples and provenance of the one table that :func:`write_tables` wrote into ``source``."""
+    found = sorted(Path(source).glob("foam_table*_samples.csv"))
+    if len(found) != 1:
+        raise InputError(f"{what} source {str(source)!r} must hold exactly one foam_table*_samples.csv, found "
+                         f"{[p.name for p in found]}")
+    prov_path = found[0].with_name(found[0].name.replace("_samples.csv", "_provenance.json"))
+    try:
+        prov = json.loads(prov_path.read_text())
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{what} source {str(source)!r}: provenance {prov_path.name} unreadable ({exc})") from exc
+    return read_samples(found[0]), prov
+
+
+def bracket_tables(lower: str | os.PathLike, upper: str | os.PathLike, out_dir: str | os.PathLike) -> dict[str, Path]:
+    """The ``"bracket"`` table of a rotated table (directory ``lower``) and a hex8 table (``upper``).
+
+    Both must hold the same samples (:func:`bracket_samples`); the table is written into ``out_dir`` with a
+    provenance holding both sources'.
+    """
+    (low, low_prov), (high, high_prov) = _read_table_dir(lower, "bracket"), _read_table_dir(upper, "bracket")
+    rows = bracket_samples(low, high)
+    provenance = {"bracketed_from": {"rotated": {"source": str(lower), "provenance": low_prov},
+                                     "hex8": {"source": str(upper), "provenance": high_prov}},
+                  "date": datetime.now(UTC).isoformat(timespec="seconds"), "n_samples": len(rows),
+                  "sample_wall_s_total": float(sum(float(r["wall_s"]) for r in rows))}
+    return write_tables(rows, out_dir, provenance, settings_from_row(rows[0]).name)

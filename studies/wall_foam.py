@@ -28,6 +28,11 @@ choice, checked by ``resolution``.
 ``merge``
     ``--from DIR [DIR ...]``: the tables of earlier ``table`` runs merged into one under ``--out``
     (:func:`homogenization.tables.merge_tables`; refuses a (density, γ) node at different settings in two runs).
+``bracket``
+    ``--from ROTATED_DIR HEX8_DIR``: a rotated and a hex8 table of the same samples as one ``"bracket"`` table
+    under ``--out`` (:func:`homogenization.tables.bracket_tables`: the mean stiffness of the two discretizations of
+    each sample, with the bracket's relative half width per modulus; the same rows as a ``--discretization
+    bracket`` sweep).
 
 Run: ``OMP_NUM_THREADS=1 python studies/wall_foam.py table --grid 0.1=60x300x300 --grid 1=96 --cache
 out/wall-cache --out out/wall-table`` (``mpirun -n 2`` deals the samples to two ranks; with ``--distribute fft``
@@ -193,6 +198,17 @@ def merge(a, comm) -> int:
     return 0
 
 
+def bracket(a, comm) -> int:
+    if comm.rank == 0:
+        paths = tables.bracket_tables(*a.sources, a.out)
+        rows = tables.aggregate(tables.read_samples(paths["samples"]))
+        print(tables.format_table(rows))
+        print("widest bracket (relative half width) per modulus: " + ", ".join(
+            f"{q} {max(r[f'bracket_{q}'] for r in rows):.1%}" for q in tables.BRACKETED))
+        print("written: " + ", ".join(str(v) for v in paths.values()))
+    return 0
+
+
 def density_check(rows: list[dict]) -> int:
     off = [r for r in rows if abs(r["measured_density"] - r["density"]) > 0.002]
     for r in off:
@@ -202,7 +218,7 @@ def density_check(rows: list[dict]) -> int:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("study", choices=("resolution", "table", "merge"), nargs="?", default="table")
+    p.add_argument("study", choices=("resolution", "table", "merge", "bracket"), nargs="?", default="table")
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--cache", type=Path, default=None, help="sample cache (default OUT/cache)")
     p.add_argument("--grid", type=parse_grid, action="append", default=None,
@@ -237,6 +253,10 @@ def main(argv=None) -> int:
         if not a.sources:
             p.error("merge needs --from DIR [DIR ...]")
         return merge(a, comm)
+    if a.study == "bracket":
+        if not a.sources or len(a.sources) != 2:
+            p.error("bracket needs --from ROTATED_DIR HEX8_DIR")
+        return bracket(a, comm)
     if a.ci:
         a.cells, a.density, a.seeds, a.ship = 4, [0.45], [0], False
         a.grid = [(1.0, (16, 12, 12)), (1.0, (20, 15, 15)), (1.0, (24, 18, 18))]
