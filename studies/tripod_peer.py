@@ -8,7 +8,10 @@ tutorial's box clamp) with the foam constants of the paper's own SOFA simulation
 peer's inputs (VannesteFelix/anisotropy, examples/SimpleCube/mechaParam/anisotropyTransverse.yaml), entry
 ``paramPaper`` for every transversely isotropic region (`tripod_models.PAPER_FOAM`, l as the scene sets it) and
 entry ``isotropic`` (E 1390 kPa, ν 0.26162) for case A's isotropic centre. Each region keeps its scene's mass
-density. Every (case, model, degree) runs on each mesh size listed; each row gives the changes of the centre's
+density. With ``--table CSV [CSV ...]`` the scenes keep their own foam regions (density, γ, fit) and each reads the
+first of the listed foam tables (aggregated table CSVs, a path each) that holds its γ, in place of the peer's
+constants: the as-built robot on another homogenized foam (one γ per table: case A's γ = 1 centre needs a table with
+γ = 1 rows). Every (case, model, degree) runs on each mesh size listed; each row gives the changes of the centre's
 height and twist from rest to middle and top (Table I's quantities), the mesh, the Newton iterations and the wall and
 CPU time. For every sequence of three or more meshes that all reached the top, the observed order of convergence
 and the Richardson estimate are computed from the three finest (mesh size h ∝ N_cells^(−1/3)), with the relative
@@ -30,7 +33,7 @@ and why, not a failed check.
 
 Run: ``python studies/tripod_peer.py converge --out DIR [--cases A B] [--models corotational corotational_sofa]
 [--p1 0.008 0.0052 0.0035] [--p2 0.010 0.008 0.006]
-[--p2-models corotational corotational_sofa] [--ci]``; ``python studies/tripod_peer.py krylov --out DIR --h 0.0052
+[--p2-models corotational corotational_sofa] [--table CSV ...] [--ci]``; ``python studies/tripod_peer.py krylov --out DIR --h 0.0052
 [--degree 1] [--variants default restart300 ...]``. Rows go to ``DIR/tripod_peer_converge.csv`` (and
 ``tripod_peer_convergence.csv``) or ``DIR/tripod_peer_krylov_*.csv``; ``python studies/tripod_peer.py table
 CSV... [--out DIR]`` merges the rows of several ``converge`` runs and prints their convergence table.
@@ -82,14 +85,36 @@ KRYLOV_VARIANTS: dict[str, dict] = {
 }
 
 
+def table_gammas(path: str | Path) -> set[float]:
+    """The γ values of an aggregated foam table CSV (its ``gamma`` column)."""
+    with open(path, newline="") as f:
+        return {float(r["gamma"]) for r in csv.DictReader(f)}
+
+
+def table_for(region: dict, tables: list[str], gammas: dict[str, set[float]], name: str) -> str:
+    """The first of ``tables`` whose rows hold the foam region's γ; SystemExit naming the region otherwise."""
+    for path in tables:
+        if any(math.isclose(float(region["gamma"]), g, rel_tol=1e-9) for g in gammas[path]):
+            return path
+    raise SystemExit(f"region {name!r} (gamma {region['gamma']}): no --table holds that gamma "
+                     f"({ {p: sorted(g) for p, g in gammas.items()} })")
+
+
 def peer_scene_dict(case: str, h: float, model: str, degree: int, petsc: dict | None = None,
-                    peer: bool = True) -> dict:
-    """The shipped as-built scene of ``case`` at mesh size ``h``, degree ``degree``, with the peer's constants."""
+                    peer: bool = True, tables: list[str] | None = None) -> dict:
+    """The shipped as-built scene of ``case`` at mesh size ``h``, degree ``degree``, with the peer's constants
+    (``peer``), or with every foam region reading the first of the foam tables ``tables`` (aggregated CSV paths)
+    that holds its γ, the scene otherwise unchanged."""
     data = tripod_as_built.scene_dict(SCENES[case], h, model)
     data["fem"]["degree"] = degree
     if petsc:
         data["fem"]["petsc"] = dict(petsc)
-    if peer:
+    if tables:
+        gammas = {path: table_gammas(path) for path in tables}
+        for name, region in data["regions"].items():
+            if region.get("material") == "foam":
+                region["table"] = table_for(region, tables, gammas, name)
+    elif peer:
         for name, region in data["regions"].items():
             rho = region["rho_solid"] * region["density"]
             if region.get("fit", "transverse") == "isotropic":
@@ -102,12 +127,15 @@ def peer_scene_dict(case: str, h: float, model: str, degree: int, petsc: dict | 
 
 
 def run_one(case: str, h: float, model: str, degree: int, comm, petsc: dict | None = None, peer: bool = True,
-            variant: str = "") -> dict:
+            variant: str = "", tables: list[str] | None = None) -> dict:
     """One run; a failed step is a row (the step, the fraction of it reached, the reason), not an exception."""
-    row = {"case": case, "foam": "paper" if peer else "table", "model": model, "degree": degree, "h_mm": h * 1e3,
+    foam = "paper" if peer else "table"
+    if tables:
+        foam = "+".join(Path(t).stem for t in tables)
+    row = {"case": case, "foam": foam, "model": model, "degree": degree, "h_mm": h * 1e3,
            "variant": variant, "status": "ok"}
     start, cpu = time.perf_counter(), time.process_time()
-    scene = parse_scene(peer_scene_dict(case, h, model, degree, petsc, peer))
+    scene = parse_scene(peer_scene_dict(case, h, model, degree, petsc, peer, tables))
     try:
         result = run_scene(scene, comm=comm)
         steps = result.steps
@@ -240,7 +268,7 @@ def converge(args, comm) -> int:
     runs += [(case, model, 2, h) for case in args.cases for model in args.p2_models for h in args.p2]
     rows = []
     for case, model, degree, h in runs:
-        rows.append(run_one(case, h, model, degree, comm))
+        rows.append(run_one(case, h, model, degree, comm, tables=args.table))
         if comm.rank == 0:
             print_row(rows[-1])
     failures = self_check()
@@ -320,6 +348,9 @@ def main(argv=None) -> int:
                    choices=["corotational", "corotational_sofa"], help="models of the P2 rows")
     c.add_argument("--p1", type=float, nargs="*", default=[0.008, 0.0052, 0.0035], help="P1 mesh sizes (m)")
     c.add_argument("--p2", type=float, nargs="*", default=[0.010, 0.008, 0.006], help="P2 mesh sizes (m)")
+    c.add_argument("--table", nargs="+", default=None, metavar="CSV",
+                   help="foam tables (aggregated CSV paths) in place of the paper's constants: each foam region "
+                        "reads the first that holds its gamma")
     c.add_argument("--ci", action="store_true", help="case B, P1, h = 10 mm, both models, checked against each other")
     k = sub.add_parser("krylov", help="corotational_sofa's Krylov set-ups on the as-built rest step")
     k.add_argument("--out", type=Path, default=Path("out/tripod_peer"))
