@@ -32,17 +32,19 @@ cells, solver limits, docs/validation/2026-11-27-tripod-as-built.md) is a row wi
 and why, not a failed check.
 
 Run: ``python studies/tripod_peer.py converge --out DIR [--cases A B] [--models corotational corotational_sofa]
-[--p1 0.008 0.0052 0.0035] [--p2 0.010 0.008 0.006]
-[--p2-models corotational corotational_sofa] [--table CSV ...] [--ci]``; ``python studies/tripod_peer.py krylov --out DIR --h 0.0052
-[--degree 1] [--variants default restart300 ...]``. Rows go to ``DIR/tripod_peer_converge.csv`` (and
+[--p1 0.008 0.0052 0.0035] [--p2 0.010 0.008 0.006] [--p2-models corotational corotational_sofa]
+[--table CSV ...] [--ci]``; ``python studies/tripod_peer.py krylov --out DIR --h 0.0052 [--degree 1]
+[--variants default restart300 ...]``. Rows go to ``DIR/tripod_peer_converge.csv`` (and
 ``tripod_peer_convergence.csv``) or ``DIR/tripod_peer_krylov_*.csv``; ``python studies/tripod_peer.py table
-CSV... [--out DIR]`` merges the rows of several ``converge`` runs and prints their convergence table.
+CSV... [--out DIR]`` merges the rows of several ``converge`` runs and prints their convergence table (one sequence
+per case, model, degree and foam).
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import hashlib
 import math
 import os
 import sys
@@ -130,8 +132,8 @@ def run_one(case: str, h: float, model: str, degree: int, comm, petsc: dict | No
             variant: str = "", tables: list[str] | None = None) -> dict:
     """One run; a failed step is a row (the step, the fraction of it reached, the reason), not an exception."""
     foam = "paper" if peer else "table"
-    if tables:
-        foam = "+".join(Path(t).stem for t in tables)
+    if tables:  # each table by its name and the start of its digest (two seeds' tables share a name)
+        foam = "+".join(f"{Path(t).stem}@{hashlib.sha256(Path(t).read_bytes()).hexdigest()[:8]}" for t in tables)
     row = {"case": case, "foam": foam, "model": model, "degree": degree, "h_mm": h * 1e3,
            "variant": variant, "status": "ok"}
     start, cpu = time.perf_counter(), time.process_time()
@@ -184,12 +186,13 @@ def richardson(h: list[float], f: list[float]) -> tuple[float, float]:
 
 
 def convergence(rows: list[dict]) -> list[dict]:
-    """Per (case, model, degree) sequence that reached the top on ≥ 3 meshes: order, Richardson limit, last change."""
+    """Per (case, model, degree, foam) sequence that reached the top on ≥ 3 meshes: order, Richardson limit, last
+    change."""
     out = []
-    keys = sorted({(r["case"], r["model"], r["degree"]) for r in rows})
-    for case, model, degree in keys:
-        seq = sorted((r for r in rows if (r["case"], r["model"], r["degree"]) == (case, model, degree)
-                      and "da_top_deg" in r), key=lambda r: -r["h_mm"])
+    keys = sorted({(r["case"], r["model"], r["degree"], r.get("foam", "paper")) for r in rows})
+    for case, model, degree, foam in keys:
+        seq = sorted((r for r in rows if (r["case"], r["model"], r["degree"], r.get("foam", "paper"))
+                      == (case, model, degree, foam) and "da_top_deg" in r), key=lambda r: -r["h_mm"])
         if len(seq) < 2:
             continue
         seq = seq[-3:]
@@ -197,7 +200,7 @@ def convergence(rows: list[dict]) -> list[dict]:
         for q in QUANTITIES:
             f = [r[q] for r in seq]
             p, limit = richardson(heff, f) if len(seq) == 3 else (math.nan, math.nan)
-            out.append({"case": case, "model": model, "degree": degree, "quantity": q,
+            out.append({"case": case, "model": model, "degree": degree, "foam": foam, "quantity": q,
                         "h_mm": " ".join(f"{r['h_mm']:g}" for r in seq),
                         "n_cells": " ".join(str(r["n_cells"]) for r in seq),
                         "values": " ".join(f"{v:.3f}" for v in f), "order": p, "richardson": limit,
