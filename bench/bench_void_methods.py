@@ -38,6 +38,7 @@ single_threaded_blas_by_default()  # before numpy loads OpenBLAS: its threads sp
 import argparse  # noqa: E402
 import csv  # noqa: E402
 import multiprocessing  # noqa: E402
+import os  # noqa: E402
 import time  # noqa: E402
 from concurrent.futures import ProcessPoolExecutor  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -75,7 +76,10 @@ def foam_image(foam: str, gamma: float, size: int, a: dict, cache: Path) -> tupl
     path = cache / f"{foam}_g{gamma:g}_{size}_c{a['cells']}_d{a['density']:g}_s{a['seed']}.npy"
     if not path.exists():
         image = vf.voxelize(_grid(gamma, size) if gamma != 1.0 else size, cubic=gamma == 1.0).astype(np.int8)
-        np.save(path, image)
+        partial = path.with_suffix(f".{os.getpid()}.partial")  # renamed when whole: runs may share the cache
+        with open(partial, "wb") as f:
+            np.save(f, image)
+        os.replace(partial, path)
     return path, tuple(float(b) for b in vf.box)
 
 

@@ -212,7 +212,8 @@ def main(argv=None) -> int:
                    help="table: each --grid is the grid at this density, scaled by REF/density at the others "
                         "(tables.scaled_resolution: constant voxels across a wall)")
     p.add_argument("--discretization", choices=tables.SWEEP_DISCRETIZATIONS, default="rotated",
-                   help="voxels: rotated (one-point, from below) or hex8 (fully integrated, from above)")
+                   help="voxels: rotated (default here: the shipped table's, one-point, from below) or hex8 (fully "
+                        "integrated, from above; the library's default for new tables)")
     p.add_argument("--from", dest="sources", type=Path, nargs="+", default=None,
                    help="merge: the table directories (--out of earlier table runs) to merge into --out")
     p.add_argument("--seeds", type=int, nargs="+", default=None, help="default 0 (resolution), 0 1 2 (table)")
