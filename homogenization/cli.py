@@ -61,7 +61,8 @@ if TYPE_CHECKING:
 
     from meshes.foam import VoronoiFoam
 
-__all__ = ["HOMOGENIZE", "HOMOGENIZE_DISCRETIZATION", "HOMOGENIZE_THREADS", "HOMOGENIZE_TOL", "TABLE", "build_parser", "format_constants", "main"]
+__all__ = ["HOMOGENIZE", "HOMOGENIZE_DISCRETIZATION", "HOMOGENIZE_THREADS", "HOMOGENIZE_TOL", "TABLE", "build_parser",
+           "format_constants", "main"]
 
 logger = logging.getLogger(__name__)
 
