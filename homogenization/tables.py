@@ -49,7 +49,7 @@ import os
 import re
 import time
 from collections.abc import Iterable, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from datetime import UTC, datetime
 from importlib import metadata
 from pathlib import Path
@@ -79,11 +79,13 @@ NU_SOLID = 0.3
 SCHEME = "pcg"
 #: The discretizations a sweep may use: the rotated scheme (one-point voxels, the shipped tables) or fully
 #: integrated trilinear voxels (``"hex8"``), both solved by the nodal Green-preconditioned CG.
-SWEEP_DISCRETIZATIONS = ("rotated", "hex8")
+SWEEP_DISCRETIZATIONS = ("rotated", "hex8", "bracket")
 #: The discretization of a new sweep (:class:`SweepSettings`, ``fenicsfoam table``): every table sample has a void
-#: phase, on which fully integrated voxels reach the converged moduli on a coarser grid in a fraction of the
-#: iterations (docs/benchmarks/2026-11-27-void-homogenization.md).
+#: (or, with ``pore_modulus``, a soft) phase, on which fully integrated voxels reach the converged moduli on a coarser
+#: grid in a fraction of the iterations (docs/benchmarks/2026-11-27-void-homogenization.md).
 DEFAULT_DISCRETIZATION = "hex8"
+#: the moduli whose rotated … hex8 bracket a ``"bracket"`` row records (``bracket_<name>``, relative half width)
+BRACKETED = ("E1", "E2", "E3", "G23", "G13", "G12", "ti_E_t", "ti_E_l", "ti_G_l", "iso_E")
 #: The shipped tables (package data).
 DATA_DIR = Path(__file__).parent / "data"
 SAMPLES_CSV = DATA_DIR / "foam_table_samples.csv"
@@ -132,7 +134,19 @@ class SweepSettings:
         moduli from above, with far fewer CG iterations on void foams) or ``"rotated"`` (one-point trilinear voxels,
         from below; the shipped tables). A ``hex8`` sweep's table name ends in ``_hex8``, its cache entries carry it
         in their names and hash, and its rows hold a ``discretization`` column; a ``rotated`` sweep's names and
-        rows are those of the shipped tables (no suffix, no column).
+        rows are those of the shipped tables (no suffix, no column). ``"bracket"``: both on the same voxels, the
+        sample's ``C`` their mean, and for
+        each modulus of :data:`BRACKETED` the relative half width of the bracket, ``bracket_<name> = |q_hex8 −
+        q_rotated| / (q_hex8 + q_rotated)`` (the two converge to the moduli from opposite sides, so the midpoint's
+        resolution error is at most about that); :func:`bracket_samples` makes the same rows from a rotated and a
+        hex8 sweep of the same samples.
+    pore_modulus
+        Young's modulus of the pores over the solid's (ν the solid's); 0 (default): void pores, the printed foam's
+        air. A positive value in ``[1e-6, 0.5]`` gives the pores that stiffness, as a homogenization that needs
+        a positive-definite phase everywhere does; the polyhedral wall foam reproduces the paper's Fig. 4 with
+        0.0045 (docs/validation/2026-11-27-fig4.md, section 7). Its table name ends in ``_pores<value>`` (``.``
+        written ``p``: ``_pores0p0045``), its cache entries carry it in their names and hash, its rows hold a
+        ``pore_modulus`` column.
 
     """
 
@@ -144,6 +158,7 @@ class SweepSettings:
     maxiter: int | None = None
     cubic: bool = True
     discretization: str = DEFAULT_DISCRETIZATION
+    pore_modulus: float = 0.0
 
     @property
     def name(self) -> str:
@@ -151,7 +166,7 @@ class SweepSettings:
 
         ``"cube"`` for the Euclidean foam in the unit cube, else ``<box>`` (Euclidean) or ``<box>_<distance>``.
         """
-        suffix = "" if self.discretization == "rotated" else f"_{self.discretization}"
+        suffix = ("" if self.discretization == "rotated" else f"_{self.discretization}") + _pores_label(self)
         if (self.box, self.distance) == ("cube", "euclidean"):
             return "cube" + suffix
         return (self.box if self.distance == "euclidean" else f"{self.box}_{self.distance}") + suffix
@@ -180,6 +195,18 @@ class SweepSettings:
             raise InputError(f"tol must lie in (0, 1), got {self.tol!r}")
         if self.discretization not in SWEEP_DISCRETIZATIONS:
             raise InputError(f"discretization must be one of {SWEEP_DISCRETIZATIONS}, got {self.discretization!r}")
+        e = self.pore_modulus
+        if isinstance(e, bool) or not isinstance(e, (int, float)) or not (e == 0 or 1e-6 <= e <= 0.5):
+            raise InputError(f"pore_modulus must be 0 (void pores) or a fraction of the solid's modulus in "
+                             f"[1e-6, 0.5], got {e!r}")
+        object.__setattr__(self, "pore_modulus", float(e))
+
+
+def _pores_label(settings: SweepSettings) -> str:
+    """``''`` for void pores, else ``'_pores'`` and the modulus with ``p`` for the point (``_pores0p0045``)."""
+    if settings.pore_modulus == 0:
+        return ""
+    return "_pores" + f"{settings.pore_modulus:.6f}".rstrip("0").replace(".", "p")
 
 
 def _parse_grid(value) -> tuple[int, int, int] | None:
@@ -207,7 +234,8 @@ def settings_from_row(row: dict) -> SweepSettings:
         resolution = int(float(resolution))
     return SweepSettings(n_cells=int(row["n_cells"]), resolution=resolution, tol=float(row["tol"]), box=row["box"],
                          distance=row["distance"], cubic=cubic,
-                         discretization=row.get("discretization", "rotated") or "rotated")
+                         discretization=row.get("discretization", "rotated") or "rotated",
+                         pore_modulus=float(row.get("pore_modulus", 0.0) or 0.0))
 
 
 @dataclass(frozen=True, order=True)
@@ -303,6 +331,8 @@ def _cache_key(sample: Sample, settings: SweepSettings) -> dict:
         key["cubic"] = False
     if settings.discretization != "rotated":  # likewise absent for the rotated scheme
         key["discretization"] = settings.discretization
+    if settings.pore_modulus != 0:  # and for void pores
+        key["pore_modulus"] = repr(float(settings.pore_modulus))
     return key
 
 
@@ -313,7 +343,7 @@ def cache_name(sample: Sample, settings: SweepSettings) -> str:
     """
     foam = "" if (settings.box, settings.distance) == ("cube", "euclidean") else f"{settings.distance}_{settings.box}_"
     digest = hashlib.sha256(json.dumps(_cache_key(sample, settings), sort_keys=True).encode()).hexdigest()[:12]
-    kind = "" if settings.discretization == "rotated" else f"_{settings.discretization}"
+    kind = ("" if settings.discretization == "rotated" else f"_{settings.discretization}") + _pores_label(settings)
     return (f"{foam}d{sample.density:.4f}_g{sample.gamma:.4f}_s{sample.seed}_n{settings.n_cells}"
             f"_N{_resolution_label(settings)}_tol{settings.tol:.1e}{kind}_{digest}.json")
 
@@ -445,24 +475,95 @@ def homogenize_sample(sample: Sample, settings: SweepSettings, threads: int | No
     foam = VoronoiFoam(settings.n_cells, sample.density, sample.gamma, seed=sample.seed,
                        box=None if settings.box == "cube" else settings.box, distance=settings.distance)
     image = foam.voxelize(settings.resolution, cubic=settings.cubic).astype(np.int8)
-    r = homogenize_fft(image, [np.zeros((6, 6)), isotropic_voigt(1.0, NU_SOLID)], scheme=SCHEME,
-                       discretization=settings.discretization, tol=settings.tol, threads=threads, box=tuple(foam.box),
-                       maxiter=settings.maxiter, comm=comm)
-    row = {"density": sample.density, "gamma": sample.gamma, "seed": sample.seed, "distance": settings.distance,
-           "box": settings.box, "n_cells": settings.n_cells, "resolution": _resolution_label(settings),
-           "tol": settings.tol,
-           "measured_density": float(foam.measured_density), "radius": float(foam.radius)}
-    row.update({name: float(r.C[int(name[1]) - 1, int(name[2]) - 1]) for name in C_ENTRIES})
-    row.update(engineering_constants(r.C))
-    ti = closest_transverse_isotropic(r.C, axis=(1.0, 0.0, 0.0))
-    row.update(ti_E_t=ti.E_t, ti_E_l=ti.E_l, ti_nu_t=ti.nu_t, ti_nu_tl=ti.nu_tl, ti_G_l=ti.G_l, ti_error=ti.error)
-    iso = closest_isotropic(r.C)
-    row.update(iso_E=iso.E, iso_nu=iso.nu, iso_error=iso.error)
-    row.update(iterations=int(sum(r.iterations)), wall_s=time.perf_counter() - start, version=_version())
+    pores = isotropic_voigt(settings.pore_modulus, NU_SOLID) if settings.pore_modulus else np.zeros((6, 6))
+    kinds = ("rotated", "hex8") if settings.discretization == "bracket" else (settings.discretization,)
+    results = [homogenize_fft(image, [pores, isotropic_voigt(1.0, NU_SOLID)], scheme=SCHEME, discretization=kind,
+                              tol=settings.tol, threads=threads, box=tuple(foam.box), maxiter=settings.maxiter,
+                              comm=comm) for kind in kinds]
+    inputs = {"density": sample.density, "gamma": sample.gamma, "seed": sample.seed, "distance": settings.distance,
+              "box": settings.box, "n_cells": settings.n_cells, "resolution": _resolution_label(settings),
+              "tol": settings.tol, "measured_density": float(foam.measured_density), "radius": float(foam.radius)}
+    return _sample_row(inputs, settings, [r.C for r in results],
+                       iterations=int(sum(sum(r.iterations) for r in results)),
+                       wall_s=time.perf_counter() - start)
+
+
+def _moduli_of(C: np.ndarray) -> dict:
+    """The engineering constants and the TI (l along x) and isotropic fits of a Voigt stiffness."""
+    out = dict(engineering_constants(C))
+    ti = closest_transverse_isotropic(C, axis=(1.0, 0.0, 0.0))
+    out.update(ti_E_t=ti.E_t, ti_E_l=ti.E_l, ti_nu_t=ti.nu_t, ti_nu_tl=ti.nu_tl, ti_G_l=ti.G_l, ti_error=ti.error)
+    iso = closest_isotropic(C)
+    out.update(iso_E=iso.E, iso_nu=iso.nu, iso_error=iso.error)
+    return out
+
+
+def _sample_row(inputs: dict, settings: SweepSettings, stiffnesses: Sequence[np.ndarray], *, iterations: int,
+                wall_s: float) -> dict:
+    """A sample's row from its inputs and its stiffness (or, for ``"bracket"``, its rotated and hex8 ones)."""
+    C = np.mean(stiffnesses, axis=0)
+    row = dict(inputs)
+    row.update({name: float(C[int(name[1]) - 1, int(name[2]) - 1]) for name in C_ENTRIES})
+    row.update(_moduli_of(C))
+    row.update(iterations=iterations, wall_s=wall_s, version=_version())
     out = {k: row[k] for k in SAMPLE_COLUMNS}
     if settings.discretization != "rotated":  # the rotated scheme's rows (the shipped tables) have no such column
         out["discretization"] = settings.discretization
+    if settings.pore_modulus != 0:  # nor the void-pore rows
+        out["pore_modulus"] = settings.pore_modulus
+    if settings.discretization == "bracket":
+        low, high = (_moduli_of(c) for c in stiffnesses)
+        out.update({f"bracket_{q}": abs(high[q] - low[q]) / (high[q] + low[q]) for q in BRACKETED})
     return out
+
+
+def bracket_samples(lower: Sequence[dict], upper: Sequence[dict]) -> list[dict]:
+    """The ``"bracket"`` rows of samples computed twice, by a rotated (``lower``) and a hex8 (``upper``) sweep.
+
+    Every sample (density, γ, seed) must be in both with the same settings but the discretization; each returned
+    row is the one a ``"bracket"`` sweep of that sample gives (:class:`SweepSettings`), with the two runs'
+    iterations and wall times summed. Raises :class:`~foambase.errors.InputError` naming the first sample that is
+    missing from one side or computed at other settings, before anything is returned.
+    """
+    def by_sample(rows, kind):
+        out = {}
+        for row in rows:
+            settings = settings_from_row(row)
+            if settings.discretization != kind:
+                raise InputError(f"bracket: the {'lower' if kind == 'rotated' else 'upper'} rows must be {kind}, "
+                                 f"sample {_sample_label(row)} is {settings.discretization}")
+            out[(float(row["density"]), float(row["gamma"]), int(row["seed"]))] = (row, settings)
+        return out
+
+    low, high = by_sample(lower, "rotated"), by_sample(upper, "hex8")
+    for key in sorted(set(low) ^ set(high)):
+        side = "hex8" if key in low else "rotated"
+        raise InputError(f"bracket: sample density {key[0]}, gamma {key[1]}, seed {key[2]} has no {side} row")
+    rows = []
+    for key in sorted(low):
+        (lo, s_lo), (hi, s_hi) = low[key], high[key]
+        settings = replace(s_lo, discretization="bracket")
+        if replace(s_hi, discretization="bracket") != settings:
+            raise InputError(f"bracket: sample density {key[0]}, gamma {key[1]}, seed {key[2]} was computed at other "
+                             f"settings by the two sweeps: {settings_dict(s_lo)} vs {settings_dict(s_hi)}")
+        inputs = {k: lo[k] for k in (*INPUTS, "measured_density", "radius")}
+        rows.append(_sample_row(inputs, settings, [_stiffness(lo), _stiffness(hi)],
+                                iterations=int(lo["iterations"]) + int(hi["iterations"]),
+                                wall_s=float(lo["wall_s"]) + float(hi["wall_s"])))
+    return rows
+
+
+def _sample_label(row: dict) -> str:
+    return f"density {row['density']}, gamma {row['gamma']}, seed {row['seed']}"
+
+
+def _stiffness(row: dict) -> np.ndarray:
+    """The Voigt ``C`` of a sample row (its 21 ``C_ij`` columns)."""
+    C = np.zeros((6, 6))
+    for name in C_ENTRIES:
+        i, j = int(name[1]) - 1, int(name[2]) - 1
+        C[i, j] = C[j, i] = float(row[name])
+    return C
 
 
 def run_sweep(samples: Sequence[Sample], settings: SweepSettings, cache_dir: str | os.PathLike, comm=None, *,
@@ -550,7 +651,11 @@ def run_sweep(samples: Sequence[Sample], settings: SweepSettings, cache_dir: str
 
 
 def aggregate(rows: Sequence[dict]) -> list[dict]:
-    """Mean and sample standard deviation (``<name>_std``) over seeds for every (density, γ)."""
+    """Mean and sample standard deviation (``<name>_std``) over seeds for every (density, γ).
+
+    Rows of a ``"bracket"`` sweep add, per modulus, the widest relative half width of the bracket over the seeds
+    (``bracket_<name>``).
+    """
     groups: dict[tuple[float, float], list[dict]] = {}
     for row in rows:
         groups.setdefault((float(row["density"]), float(row["gamma"])), []).append(row)
@@ -561,6 +666,8 @@ def aggregate(rows: Sequence[dict]) -> list[dict]:
             values = np.array([float(m[name]) for m in members])
             out[name] = float(values.mean())
             out[f"{name}_std"] = float(values.std(ddof=1)) if len(values) > 1 else 0.0
+        for name in (k for k in members[0] if k.startswith("bracket_")):  # the widest bracket over the seeds
+            out[name] = max(float(m[name]) for m in members)
         table.append(out)
     return table
 
@@ -748,19 +855,40 @@ def merge_tables(sources: Sequence[str | os.PathLike], out_dir: str | os.PathLik
     """
     loaded, provenance = [], []
     for source in sources:
-        found = sorted(Path(source).glob("foam_table*_samples.csv"))
-        if len(found) != 1:
-            raise InputError(f"merge source {str(source)!r} must hold exactly one foam_table*_samples.csv, found "
-                             f"{[p.name for p in found]}")
-        loaded.append((str(source), read_samples(found[0])))
-        prov_path = found[0].with_name(found[0].name.replace("_samples.csv", "_provenance.json"))
-        try:
-            prov = json.loads(prov_path.read_text())
-        except (OSError, ValueError) as exc:
-            raise InputError(f"merge source {str(source)!r}: provenance {prov_path.name} unreadable ({exc})") from exc
+        rows, prov = _read_table_dir(source, "merge")
+        loaded.append((str(source), rows))
         provenance.append({"source": str(source), "provenance": prov})
     rows = merge_samples(loaded)
     name = settings_from_row(rows[0]).name
     merged = {"merged_from": provenance, "date": datetime.now(UTC).isoformat(timespec="seconds"),
               "n_samples": len(rows), "sample_wall_s_total": float(sum(float(r["wall_s"]) for r in rows))}
     return write_tables(rows, out_dir, merged, name)
+
+
+def _read_table_dir(source: str | os.PathLike, what: str) -> tuple[list[dict], dict]:
+    """The samples and provenance of the one table that :func:`write_tables` wrote into ``source``."""
+    found = sorted(Path(source).glob("foam_table*_samples.csv"))
+    if len(found) != 1:
+        raise InputError(f"{what} source {str(source)!r} must hold exactly one foam_table*_samples.csv, found "
+                         f"{[p.name for p in found]}")
+    prov_path = found[0].with_name(found[0].name.replace("_samples.csv", "_provenance.json"))
+    try:
+        prov = json.loads(prov_path.read_text())
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{what} source {str(source)!r}: provenance {prov_path.name} unreadable ({exc})") from exc
+    return read_samples(found[0]), prov
+
+
+def bracket_tables(lower: str | os.PathLike, upper: str | os.PathLike, out_dir: str | os.PathLike) -> dict[str, Path]:
+    """The ``"bracket"`` table of a rotated table (directory ``lower``) and a hex8 table (``upper``).
+
+    Both must hold the same samples (:func:`bracket_samples`); the table is written into ``out_dir`` with a
+    provenance holding both sources'.
+    """
+    (low, low_prov), (high, high_prov) = _read_table_dir(lower, "bracket"), _read_table_dir(upper, "bracket")
+    rows = bracket_samples(low, high)
+    provenance = {"bracketed_from": {"rotated": {"source": str(lower), "provenance": low_prov},
+                                     "hex8": {"source": str(upper), "provenance": high_prov}},
+                  "date": datetime.now(UTC).isoformat(timespec="seconds"), "n_samples": len(rows),
+                  "sample_wall_s_total": float(sum(float(r["wall_s"]) for r in rows))}
+    return write_tables(rows, out_dir, provenance, settings_from_row(rows[0]).name)

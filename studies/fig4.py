@@ -19,7 +19,12 @@ the paper's ref. [11]): evidence about the printed foam, not ground truth.
     ``--grid``, ``--discretization``, ``--seeds``), cached one JSON per sample under ``--cache`` by
     :func:`homogenization.tables.run_sweep` (rerunning resumes), and appends their rows to ``--samples``.
     Candidates: ``wall`` (the polyhedral wall foam, ``distance="polyhedral"``) and ``strut`` (the Euclidean strut
-    foam), both 8 cells in the equiaxed box.
+    foam), both 8 cells in the equiaxed box; ``edge`` (struts along the polyhedral diagram's edges,
+    :func:`gauge_edge_image`). Built and homogenized here, uncached, with each image's connectivity
+    (:func:`measure_direct`): ``wall-direct`` (the wall foam's own voxels on any grid), ``wall-normal`` (walls
+    whose width is measured normal to the wall) and ``hybrid`` (walls and edge struts, ``--strut-fraction`` of
+    the density in the struts, :func:`hybrid_image`); ``--cases normal`` solves the three normal load cases only
+    (E's and ν's) and ``--void-modulus`` gives the pores a small stiffness instead of none.
 
 Run: ``nice -n 10 python studies/fig4.py --out out/fig4 --figure docs/img/fig4.png`` (seconds; ``--ci`` is the same).
 """
@@ -218,7 +223,10 @@ def figure(path: Path, rows: list[dict], tables: dict, samples: list[dict]) -> P
 # --------------------------------------------------------------------------------------------------
 # Candidate measurements
 # --------------------------------------------------------------------------------------------------
-CANDIDATES = {"wall": "polyhedral", "strut": "euclidean", "edge": None}
+CANDIDATES = {"wall": "polyhedral", "strut": "euclidean", "edge": None, "wall-direct": None, "wall-normal": None,
+              "hybrid": None}
+#: candidates built and homogenized by :func:`measure_direct`
+DIRECT = ("wall-direct", "wall-normal", "hybrid")
 
 
 def gauge_edge_skeleton(n_cells: int, gamma: float, seed: int, shape) -> tuple[np.ndarray, np.ndarray]:
@@ -331,11 +339,187 @@ def measure_edge(args) -> list[dict]:
     return rows
 
 
+def wall_field(n_cells: int, gamma: float, seed: int, shape, upper: float) -> tuple[np.ndarray, np.ndarray]:
+    """The polyhedral wall field at the voxel centres: ``(ψ, |n_xy|)``, each of the grid's shape.
+
+    ``ψ`` is the in-layer (horizontal) distance to the nearest wall of the diagram of
+    ``VoronoiFoam(n_cells, ·, gamma, seed, box="equiaxed", distance="polyhedral")`` (exact up to ``upper``, some
+    value ``> upper`` beyond), the field whose level set ``ψ ≤ r`` is that foam's solid; ``|n_xy|`` the horizontal
+    part of the unit normal of that wall (0 beyond ``upper``), so ``ψ |n_xy|`` is the distance measured normal to
+    the wall (exact near a wall's face, away from the wall's edges).
+    """
+    from meshes.gauge import GaugeWalls, default_polytope
+
+    box = np.array([gamma, 1.0, 1.0])
+    seeds = np.random.default_rng(seed).random((n_cells, 3)) * box
+    walls = GaugeWalls(seeds, box, default_polytope(), gamma)
+    psi, _, _, n = walls.evaluate(_centres(tuple(shape), box), upper=upper, details=True)
+    return psi.reshape(shape), np.linalg.norm(n[:, :2], axis=1).reshape(shape)
+
+
+def _quantile_level(values: np.ndarray, count: int) -> float:
+    """The ``count``-th smallest of ``values`` (so that ``values <= level`` holds at least ``count`` of them)."""
+    count = int(np.clip(count, 1, values.size))
+    return float(np.partition(values.ravel(), count - 1)[count - 1])
+
+
+def hybrid_image(n_cells: int, density: float, gamma: float, seed: int, shape, strut_fraction: float,
+                 fields: dict | None = None) -> tuple[np.ndarray, dict]:
+    """Walls and edge struts of the polyhedral diagram together, as one voxel image (a candidate).
+
+    The struts are :func:`gauge_edge_image`'s (voxel centres within ``r_s`` of the edge skeleton), ``r_s`` the
+    ``strut_fraction × density``-quantile of the skeleton distance over the voxel centres; the walls are the
+    polyhedral wall foam's level set ``ψ ≤ r_w`` (:func:`wall_field`), ``r_w`` chosen so that the union holds
+    exactly ``ceil(density × voxels)`` voxels (up to ties of ``ψ``): the walls take the rest of the density outside
+    the struts (at ``strut_fraction`` 1 there are no walls, and the struts hold the density to within one shell of
+    ties of the skeleton distance). ``strut_fraction`` 0 is the wall foam on these voxels, 1 the ``edge``
+    candidate. ``fields`` (``{"skeleton": distances, "psi": ψ}``, from an earlier call on the same grid) saves
+    recomputing them.
+    Returns the bool image and ``{"measured_density", "strut_density" (of the struts alone), "wall_radius",
+    "strut_radius"}``.
+    """
+    from scipy.spatial import cKDTree
+
+    if not (isinstance(strut_fraction, (int, float)) and 0.0 <= strut_fraction <= 1.0):
+        raise ValueError(f"strut_fraction must lie in [0, 1], got {strut_fraction!r}")
+    shape = tuple(shape)
+    box = np.array([gamma, 1.0, 1.0])
+    fields = {} if fields is None else fields
+    if "skeleton" not in fields:
+        skeleton, _ = gauge_edge_skeleton(n_cells, gamma, seed, shape)
+        fields["skeleton"] = cKDTree(skeleton, boxsize=box).query(_centres(shape, box))[0].reshape(shape)
+    if "psi" not in fields:
+        from meshes.foam import VoronoiFoam
+
+        r = VoronoiFoam(n_cells, min(density * 1.5, 0.45), gamma, seed=seed, box="equiaxed",
+                        distance="polyhedral").radius
+        fields["psi"] = wall_field(n_cells, gamma, seed, shape, upper=r)[0]
+    dc, psi = fields["skeleton"], fields["psi"]
+    total = int(np.ceil(density * dc.size))
+    if strut_fraction > 0:
+        r_s = _quantile_level(dc, int(np.ceil(strut_fraction * total)))
+        struts = dc <= r_s
+    else:
+        r_s, struts = 0.0, np.zeros(shape, dtype=bool)
+    rest = total - int(struts.sum())
+    r_w = _quantile_level(psi[~struts], rest) if rest > 0 else 0.0
+    if rest > 0 and not np.isfinite(r_w):
+        raise ValueError(f"wall field computed up to too small a distance for density {density}")
+    img = struts | ((psi <= r_w) if rest > 0 else False)
+    return img, {"measured_density": float(img.mean()), "strut_density": float(struts.mean()),
+                 "wall_radius": r_w, "strut_radius": r_s, "strut_fraction": strut_fraction}
+
+
+def homogenize_image(img: np.ndarray, box, disc: str, tol: float, maxiter: int, cases: str = "all",
+                     void_modulus: float = 0.0) -> dict:
+    """Engineering constants, iterations and connectivity of one bool image (E_s = 1, ν_s = 0.3).
+
+    ``void_modulus`` > 0 gives the pores an isotropic stiffness ``(void_modulus, 0.3)`` instead of zero (a
+    compliant phase such as a fixed-point FFT scheme needs; see the validation page).
+
+    ``cases="normal"`` solves the three normal load cases only and reads ``E_i``, ``ν_ij`` from the inverse of
+    the normal 3×3 block of C (exact for an orthotropic C; the shear–normal couplings it leaves out are checked
+    against the six-case C where both were run); the G's are then NaN.
+    """
+    import time
+
+    from homogenization.connectivity import connectivity
+    from homogenization.fft import homogenize_fft
+    from homogenization.tensors import engineering_constants, isotropic_voigt
+
+    t1 = time.perf_counter()
+    strains = None if cases == "all" else np.eye(6)[:3]
+    void = isotropic_voigt(void_modulus, 0.3) if void_modulus > 0 else np.zeros((6, 6))
+    r = homogenize_fft(img.astype(np.int8), [void, isotropic_voigt(1.0, 0.3)], discretization=disc,
+                       box=tuple(box), tol=tol, maxiter=maxiter, macro_strains=strains,
+                       allow_singular=cases != "all")
+    if cases == "all":
+        out = engineering_constants(r.C)
+        S = np.linalg.inv(np.asarray(r.C)[:3, :3])
+        out["E1_normal_block"] = float(1.0 / S[0, 0])
+    else:
+        S = np.linalg.inv(np.asarray(r.C)[:3, :3])
+        out = {f"E{i + 1}": float(1.0 / S[i, i]) for i in range(3)}
+        out.update({f"nu{i + 1}{j + 1}": float(-S[i, j] / S[i, i]) for i in range(3) for j in range(3) if i != j})
+        out.update({"G23": float("nan"), "G13": float("nan"), "G12": float("nan")})
+        out["E1_normal_block"] = out["E1"]
+    conn = connectivity(img)
+    out.update({"cases": cases, "iterations": int(sum(r.iterations)), "solve_s": time.perf_counter() - t1,
+                "edge_contacts_x": conn.edge_contacts[0], "edge_contacts_y": conn.edge_contacts[1],
+                "edge_contacts_z": conn.edge_contacts[2], "corner_contacts": conn.corner_contacts,
+                "islands": conn.hinged_islands + conn.floating_islands})
+    return out
+
+
+def _grid_shape(grid: str) -> tuple[float, tuple[int, int, int]]:
+    gamma, _, res = grid.partition("=")
+    gamma = float(gamma)
+    box = np.array([gamma, 1.0, 1.0])
+    shape = tuple(int(v) for v in res.split("x")) if "x" in res else tuple(int(round(int(res) * b)) for b in box)
+    return gamma, shape
+
+
+def measure_direct(args) -> list[dict]:
+    """Candidates built here on the voxels (not cached; every row also has the image's connectivity).
+
+    ``wall-direct``: the polyhedral wall foam voxelized by ``VoronoiFoam.voxelize`` (the table samples' image);
+    ``wall-normal``: the same walls with their width measured normal to the wall (``ψ |n_xy| ≤ r``, ``r`` the
+    density quantile over the voxel centres); ``hybrid``: :func:`hybrid_image` at each ``--strut-fraction``.
+    """
+    import time
+
+    from meshes.foam import VoronoiFoam
+
+    rows = []
+    for grid in args.grid:
+        gamma, shape = _grid_shape(grid)
+        box = np.array([gamma, 1.0, 1.0])
+        for seed in args.seeds:
+            fields: dict = {}
+            for density in args.density:
+                fractions = args.strut_fraction if args.candidate == "hybrid" else [None]
+                for phi in fractions:
+                    t0 = time.perf_counter()
+                    if args.candidate == "wall-direct":
+                        foam = VoronoiFoam(args.cells, density, gamma, seed=seed, box="equiaxed",
+                                           distance="polyhedral")
+                        img = foam.voxelize(shape, cubic=False)
+                        info = {"measured_density": float(img.mean()), "wall_radius": foam.radius}
+                    elif args.candidate == "wall-normal":
+                        if "normal" not in fields:
+                            r = VoronoiFoam(args.cells, min(1.5 * max(args.density), 0.45), gamma, seed=seed,
+                                            box="equiaxed", distance="polyhedral").radius
+                            psi, nxy = wall_field(args.cells, gamma, seed, shape, upper=r)
+                            near = np.isfinite(psi) & (psi <= r)
+                            fields["normal"] = np.full(psi.shape, np.inf)
+                            fields["normal"][near] = psi[near] * nxy[near]
+                        level = _quantile_level(fields["normal"], int(np.ceil(density * np.prod(shape))))
+                        img = fields["normal"] <= level
+                        info = {"measured_density": float(img.mean()), "wall_radius": level}
+                    else:
+                        img, info = hybrid_image(args.cells, density, gamma, seed, shape, phi, fields)
+                    built = time.perf_counter() - t0
+                    for disc in args.discretization:
+                        res = homogenize_image(img, box, disc, args.tol, args.maxiter, args.cases,
+                                               args.void_modulus)
+                        label = args.candidate if phi is None else f"hybrid{phi:g}"
+                        if args.void_modulus > 0:
+                            label += f"+void{args.void_modulus:g}"
+                        rows.append({"candidate": label, "discretization": disc, "density": density,
+                                     "gamma": gamma, "seed": seed, "resolution": "x".join(map(str, shape)),
+                                     "void_modulus": args.void_modulus, **info, **res,
+                                     "wall_s": built + res["solve_s"]})
+                        _save(rows[-1:], args)
+    return rows
+
+
 def measure(args) -> list[dict]:
     from homogenization.tables import Sample, SweepSettings, run_sweep
 
     if args.candidate == "edge":
         return _save(measure_edge(args), args)
+    if args.candidate in DIRECT:
+        return measure_direct(args)
     rows = []
     for grid in args.grid:
         gamma, _, res = grid.partition("=")
@@ -394,6 +578,12 @@ def main(argv=None) -> int:
     m.add_argument("--discretization", nargs="+", default=["rotated", "hex8"])
     m.add_argument("--cache", default="out/fig4-cache")
     m.add_argument("--samples", dest="samples_out", default="out/fig4/samples.csv")
+    m.add_argument("--strut-fraction", type=float, nargs="+", default=[0.5],
+                   help="hybrid: fraction of the density in the edge struts (0: walls only, 1: struts only)")
+    m.add_argument("--void-modulus", type=float, default=0.0,
+                   help="direct candidates: Young's modulus of the pores / E_s (default 0: void)")
+    m.add_argument("--cases", choices=("all", "normal"), default="all",
+                   help="direct candidates: all six load cases, or the three normal ones (E's and ν's only)")
     args = p.parse_args(argv)
     if args.command == "measure":
         args.samples = args.samples_out

@@ -21,13 +21,18 @@ choice, checked by ``resolution``.
     Every ``--density`` × one grid per γ (``--grid``, the last given for a γ wins), seeds ``--seeds`` (default
     0 1 2), in one resumable run: with ``--reference-density REF`` each ``--grid`` is the grid at ``REF``, scaled
     at the other densities by :func:`homogenization.tables.scaled_resolution` (constant voxels across a wall).
-    Writes one table ``equiaxed_polyhedral`` (``_hex8`` with ``--discretization hex8``,
-    :attr:`SweepSettings.name`) over the whole grid with its samples and provenance (every node's settings)
-    under ``--out``, and with ``--ship`` into ``homogenization/data``. Exits 1 if a sample misses its density by
-    more than 0.002.
+    Writes one table ``equiaxed_polyhedral`` (``_hex8`` with ``--discretization hex8``, ``_pores0p0045`` with
+    ``--pore-modulus 0.0045``: pores of that stiffness, :attr:`SweepSettings.name`) over the whole grid with its
+    samples and provenance (every node's settings) under ``--out``, and with ``--ship`` into
+    ``homogenization/data``. Exits 1 if a sample misses its density by more than 0.002.
 ``merge``
     ``--from DIR [DIR ...]``: the tables of earlier ``table`` runs merged into one under ``--out``
     (:func:`homogenization.tables.merge_tables`; refuses a (density, γ) node at different settings in two runs).
+``bracket``
+    ``--from ROTATED_DIR HEX8_DIR``: a rotated and a hex8 table of the same samples as one ``"bracket"`` table
+    under ``--out`` (:func:`homogenization.tables.bracket_tables`: the mean stiffness of the two discretizations of
+    each sample, with the bracket's relative half width per modulus; the same rows as a ``--discretization
+    bracket`` sweep).
 
 Run: ``OMP_NUM_THREADS=1 python studies/wall_foam.py table --grid 0.1=60x300x300 --grid 1=96 --cache
 out/wall-cache --out out/wall-table`` (``mpirun -n 2`` deals the samples to two ranks; with ``--distribute fft``
@@ -79,7 +84,8 @@ def parse_seeds(text: str) -> tuple[float, list[int]]:
 def settings_for(grid, a) -> tables.SweepSettings:
     cubic = not isinstance(grid, tuple)
     return tables.SweepSettings(n_cells=a.cells, resolution=grid, tol=a.tol, box="equiaxed", distance="polyhedral",
-                                maxiter=a.maxiter, cubic=cubic, discretization=a.discretization)
+                                maxiter=a.maxiter, cubic=cubic, discretization=a.discretization,
+                                pore_modulus=a.pore_modulus)
 
 
 def spacing(gamma: float, grid) -> np.ndarray:
@@ -192,6 +198,17 @@ def merge(a, comm) -> int:
     return 0
 
 
+def bracket(a, comm) -> int:
+    if comm.rank == 0:
+        paths = tables.bracket_tables(*a.sources, a.out)
+        rows = tables.aggregate(tables.read_samples(paths["samples"]))
+        print(tables.format_table(rows))
+        print("widest bracket (relative half width) per modulus: " + ", ".join(
+            f"{q} {max(r[f'bracket_{q}'] for r in rows):.1%}" for q in tables.BRACKETED))
+        print("written: " + ", ".join(str(v) for v in paths.values()))
+    return 0
+
+
 def density_check(rows: list[dict]) -> int:
     off = [r for r in rows if abs(r["measured_density"] - r["density"]) > 0.002]
     for r in off:
@@ -201,7 +218,7 @@ def density_check(rows: list[dict]) -> int:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("study", choices=("resolution", "table", "merge"), nargs="?", default="table")
+    p.add_argument("study", choices=("resolution", "table", "merge", "bracket"), nargs="?", default="table")
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--cache", type=Path, default=None, help="sample cache (default OUT/cache)")
     p.add_argument("--grid", type=parse_grid, action="append", default=None,
@@ -214,6 +231,9 @@ def main(argv=None) -> int:
     p.add_argument("--discretization", choices=tables.SWEEP_DISCRETIZATIONS, default="rotated",
                    help="voxels: rotated (default here: the shipped table's, one-point, from below) or hex8 (fully "
                         "integrated, from above; the library's default for new tables)")
+    p.add_argument("--pore-modulus", type=float, default=0.0,
+                   help="Young's modulus of the pores / E_s (default 0: void pores; 0.0045 reproduces the paper's "
+                        "Fig. 4, docs/validation/2026-11-27-fig4.md section 7); the table name ends in _pores...")
     p.add_argument("--from", dest="sources", type=Path, nargs="+", default=None,
                    help="merge: the table directories (--out of earlier table runs) to merge into --out")
     p.add_argument("--seeds", type=int, nargs="+", default=None, help="default 0 (resolution), 0 1 2 (table)")
@@ -234,6 +254,10 @@ def main(argv=None) -> int:
         if not a.sources:
             p.error("merge needs --from DIR [DIR ...]")
         return merge(a, comm)
+    if a.study == "bracket":
+        if not a.sources or len(a.sources) != 2:
+            p.error("bracket needs --from ROTATED_DIR HEX8_DIR")
+        return bracket(a, comm)
     if a.ci:
         a.cells, a.density, a.seeds, a.ship = 4, [0.45], [0], False
         a.grid = [(1.0, (16, 12, 12)), (1.0, (20, 15, 15)), (1.0, (24, 18, 18))]

@@ -109,3 +109,37 @@ def test_gauge_edge_image_holds_the_density_and_turns_into_the_layers_at_low_gam
         assert abs(img.mean() - 0.25) < 0.03 and info["measured_density"] == img.mean()
     # isotropic skeleton: mean |cos x| near 1/2; flattened cells: edges mostly in the y–z layers
     assert 0.35 < info1["edge_dir_abs_cos_x"] < 0.65 and info01["edge_dir_abs_cos_x"] < 0.3
+
+
+def test_hybrid_image_holds_the_density_splits_it_by_the_strut_fraction_and_refuses_a_bad_one():
+    shape = (10, 40, 40)
+    fields = {"psi": fig4.wall_field(8, 0.1, 3, shape, upper=np.inf)[0]}
+    total = int(np.ceil(0.26 * np.prod(shape)))
+    images = {}
+    for phi in (0.0, 0.5, 1.0):
+        img, info = fig4.hybrid_image(8, 0.26, 0.1, 3, shape, phi, fields)
+        images[phi] = img
+        # with walls the union holds the target voxel count (ψ has ties only at round-off); the struts alone
+        # (φ = 1) hold it to within one shell of ties of the skeleton distance
+        assert abs(int(img.sum()) - total) <= (2 if phi < 1 else 0.03 * img.size)
+        assert info["measured_density"] == img.mean()
+        # the struts alone hold at least their share and at most one shell of ties more
+        assert phi * 0.26 <= info["strut_density"] <= phi * 0.26 + 0.03
+    # φ = 0: the wall level set alone; φ = 1: the struts alone; in between both member sets are present
+    assert np.array_equal(images[0.0], fields["psi"] <= np.sort(fields["psi"].ravel())[total - 1])
+    assert np.array_equal(images[1.0], fields["skeleton"] <= fig4._quantile_level(fields["skeleton"], total))
+    assert (images[0.5] & ~images[1.0]).any() and (images[0.5] & ~images[0.0]).any()
+    with pytest.raises(ValueError, match="1.5"):
+        fig4.hybrid_image(8, 0.26, 0.1, 3, shape, 1.5, fields)
+
+
+def test_homogenize_image_with_a_compliant_pore_phase_gives_the_voigt_modulus_along_a_laminate():
+    """Layers normal to x, 4 of 10 solid, pores of modulus 0.01 and the same ν: along the layers the strain is
+    uniform, so E_y = E_z = 0.4 · 1 + 0.6 · 0.01 exactly; with void pores the same image gives 0.4."""
+    img = np.zeros((10, 6, 6), dtype=bool)
+    img[:4] = True
+    soft = fig4.homogenize_image(img, (1.0, 1.0, 1.0), "rotated", 1e-8, 200, "normal", void_modulus=0.01)
+    assert soft["E2"] == pytest.approx(0.406, rel=1e-6) and soft["E3"] == pytest.approx(0.406, rel=1e-6)
+    assert soft["islands"] == 0 and soft["edge_contacts_x"] == 0
+    void = fig4.homogenize_image(img, (1.0, 1.0, 1.0), "hex8", 1e-8, 200, "normal")
+    assert void["E2"] == pytest.approx(0.4, rel=1e-6)
