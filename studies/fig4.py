@@ -565,6 +565,8 @@ def main(argv=None) -> int:
     p.add_argument("--figure", default=None, help="figure path (default OUT/fig4.png)")
     p.add_argument("--samples", default=None, help="candidate samples CSV written by 'measure'")
     p.add_argument("--ci", action="store_true", help="the comparison only (it takes seconds at any size)")
+    p.add_argument("--table", nargs="+", default=[], metavar="CSV",
+                   help="compare: also these aggregated table files (e.g. a sweep's table before it ships)")
     sub = p.add_subparsers(dest="command")
     sub.add_parser("compare")
     m = sub.add_parser("measure")
@@ -597,6 +599,7 @@ def main(argv=None) -> int:
 
     rows = paper_rows()
     tables = {name: foam_table(name) for name in shipped_tables()}
+    tables.update({Path(path).stem.removeprefix("foam_table_"): foam_table(path) for path in args.table})
     comparison = [c for name, t in tables.items() for c in compare_table(t, rows, name)]
     laws = scaling(rows)
     # checks: every covered row has all quantities; the interpolation is the table at its nodes
