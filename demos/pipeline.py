@@ -98,7 +98,8 @@ def table_rows(path: Path, density: float, gamma: float, **match: float) -> list
 def foam_stage(region: dict, ci: bool, comm: MPI.Comm) -> tuple[dict | None, object, list[str]]:
     """Homogenize one foam, resolve the plate's material and check both; prints on rank 0."""
     density, gamma = region["density"], region["gamma"]
-    settings = CI_SETTINGS if ci else tables.SweepSettings()
+    # the full run recomputes a shipped sample, so with the settings the shipped table records (its provenance)
+    settings = CI_SETTINGS if ci else tables.recorded_settings("cube")[float(gamma)]
     sample = homogenize_one_foam(density, gamma, settings, comm)
     material = foam_material(density, gamma, region["E_solid"], region["nu_solid"], rho_solid=region["rho_solid"],
                              fit=region["fit"])

@@ -10,7 +10,9 @@ constants and fits are printed. It is written to a temporary file beside ``--out
 half-written; ``--stl`` also writes the foam's surface. Defaults: ``--tol 1e-4`` (tighter tolerances move the
 constants by less than the resolution error), ``--threads 1`` (considerate on a shared machine; more threads than
 CPUs is a warning). Every argument and output location is checked before any work, naming the argument.
-``--scheme`` defaults to ``pcg`` with the rotated and hex8 discretizations and ``cg`` with the spectral one.
+``--discretization`` defaults to ``hex8`` (fully integrated voxels, :data:`HOMOGENIZE_DISCRETIZATION`; ``rotated``
+is the shipped tables' one-point scheme), ``--scheme`` to ``pcg`` with the rotated and hex8 discretizations and
+``cg`` with the spectral one.
 
 Under ``mpirun -n K`` (K > 1) ``homogenize`` distributes the one RVE over the K ranks
 (``homogenize_fft(..., comm=MPI.COMM_WORLD)``, slabs of planes along x, ``pcg`` with the rotated or hex8 discretization
@@ -18,10 +20,12 @@ only): rank 0 checks the arguments and outputs, voxelizes the foam (its memory p
 one byte per voxel) and sends each rank its planes; an ``--image`` is memory-mapped and every rank reads only its
 own planes. Rank 0 prints and writes the JSON (and the STL). ``--threads`` is per rank.
 
-``fenicsfoam table`` (:data:`TABLE`) homogenizes every (density, γ, seed) foam of a sweep as the shipped table was
-made (:func:`homogenization.tables.run_sweep`: each finished sample is cached, so an interrupted sweep resumes; under
-``mpirun`` the samples are dealt to the ranks) and writes ``foam_table_samples.csv``, ``foam_table.csv`` (mean and
-standard deviation over seeds) and ``foam_table_provenance.json`` into ``--out``.
+``fenicsfoam table`` (:data:`TABLE`) homogenizes every (density, γ, seed) foam of a sweep
+(:func:`homogenization.tables.run_sweep`: each finished sample is cached, so an interrupted sweep resumes; under
+``mpirun`` the samples are dealt to the ranks) and writes the table's samples, its mean and standard deviation over
+seeds and its provenance into ``--out`` (``foam_table_<name>*``, :func:`homogenization.tables.table_paths`). Its
+voxels default to ``hex8`` (``--discretization``, :data:`homogenization.tables.DEFAULT_DISCRETIZATION`: the table
+``cube_hex8`` by default); ``--discretization rotated`` computes as the shipped tables were made (``foam_table*``).
 
 Exit status: 0 ok; 1 another failure (e.g. a homogenized stiffness that is not positive definite: a solid that
 does not percolate); 2 bad arguments, named in the message (before any work); 3 the FFT solver did not converge.
@@ -57,7 +61,8 @@ if TYPE_CHECKING:
 
     from meshes.foam import VoronoiFoam
 
-__all__ = ["HOMOGENIZE", "HOMOGENIZE_THREADS", "HOMOGENIZE_TOL", "TABLE", "build_parser", "format_constants", "main"]
+__all__ = ["HOMOGENIZE", "HOMOGENIZE_DISCRETIZATION", "HOMOGENIZE_THREADS", "HOMOGENIZE_TOL", "TABLE", "build_parser",
+           "format_constants", "main"]
 
 logger = logging.getLogger(__name__)
 
@@ -69,6 +74,10 @@ logger = logging.getLogger(__name__)
 #: scatter (docs/homogenization.md), and one thread is the considerate default on a shared machine.
 HOMOGENIZE_TOL = 1e-4
 HOMOGENIZE_THREADS = 1
+#: ``homogenize``'s voxels: its images always hold a void phase (0) beside the solid, on which fully integrated
+#: voxels reach the converged moduli on a coarser grid in far fewer iterations than the rotated scheme
+#: (docs/benchmarks/2026-11-27-void-homogenization.md); ``--discretization rotated`` gives the shipped tables' one.
+HOMOGENIZE_DISCRETIZATION = "hex8"
 
 
 def _foam_kind_arguments(p: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
@@ -117,9 +126,10 @@ def _homogenize_arguments(p: argparse.ArgumentParser) -> None:
     sol.add_argument("--scheme", choices=SCHEMES, default=None,
                      help="default: pcg with the rotated and hex8 discretizations, cg with the spectral one; under "
                           "mpirun with more than one rank only pcg (rotated or hex8)")
-    sol.add_argument("--discretization", choices=DISCRETIZATIONS, default="rotated",
-                     help="rotated: one-point trilinear voxels (moduli from below); hex8: fully integrated trilinear "
-                          "voxels (from above, fewer iterations on void foams); spectral: Moulinec-Suquet")
+    sol.add_argument("--discretization", choices=DISCRETIZATIONS, default=HOMOGENIZE_DISCRETIZATION,
+                     help=f"default {HOMOGENIZE_DISCRETIZATION}: fully integrated trilinear voxels (moduli from "
+                          "above, far fewer iterations on void foams); rotated: one-point trilinear voxels (from "
+                          "below; the shipped tables); spectral: Moulinec-Suquet")
     sol.add_argument("--tol", type=float, default=HOMOGENIZE_TOL,
                      help="relative equilibrium residual ||G[σ]||/||G[C:E]||")
     sol.add_argument("--maxiter", type=int, default=None, help="iterations per load case (default: solver's)")
@@ -448,8 +458,9 @@ _HOMOGENIZE_DESCRIPTION = (
     "stiffness.")
 _TABLE_DESCRIPTION = (
     "The foam-table sweep: every (density, gamma, seed) foam homogenized by the FFT solver; each finished sample "
-    "is cached (an interrupted sweep resumes), under mpirun the samples are dealt to the ranks. Writes "
-    "foam_table_samples.csv, foam_table.csv (mean and std over seeds) and foam_table_provenance.json into --out.")
+    "is cached (an interrupted sweep resumes), under mpirun the samples are dealt to the ranks. Writes the "
+    "table's samples, its mean and std over seeds and its provenance into --out: foam_table_cube_hex8*.csv/.json "
+    "with the default hex8 voxels, foam_table*.csv/.json (the shipped table's names) with --discretization rotated.")
 
 #: The inputs recorded in the JSON: the arguments of the command (not the dispatcher's).
 _HOMOGENIZE_INPUTS = ("density", "image", "gamma", "cells", "seed", "resolution", "box", "distance", "stl",
@@ -476,9 +487,9 @@ def _table_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tol", type=float, default=tables.SweepSettings.tol, help="FFT (CG) tolerance")
     _foam_kind_arguments(p)
     p.add_argument("--maxiter", type=int, default=None, help="CG iterations per load case (default: solver's)")
-    p.add_argument("--discretization", choices=tables.SWEEP_DISCRETIZATIONS, default="rotated",
-                   help="voxels: rotated (one-point, the shipped tables) or hex8 (fully integrated); a hex8 table's "
-                        "name ends in _hex8")
+    p.add_argument("--discretization", choices=tables.SWEEP_DISCRETIZATIONS, default=tables.DEFAULT_DISCRETIZATION,
+                   help=f"voxels, default {tables.DEFAULT_DISCRETIZATION}: hex8 (fully integrated; the table's name "
+                        "ends in _hex8) or rotated (one-point, the shipped tables' and their names)")
     p.add_argument("--threads", type=int, default=None,
                    help="FFTW threads per rank; None: CPUs / ranks (more than the CPUs: a warning)")
 

@@ -3,10 +3,17 @@
 One *sample* is one foam ``meshes.foam.VoronoiFoam(n_cells, density, gamma, seed, box=, distance=)`` voxelized
 with cubic voxels (``N`` along the longest box edge; or, opted into with ``cubic=False``, an explicit grid of
 non-cubic voxels) and homogenized in its periodic box by
-:func:`homogenization.fft.homogenize_fft` (rotated scheme, ``scheme="pcg"``: the iterates of the strain CG
-``"cg"`` with which the shipped tables were made, at half the FFT work) with an isotropic solid of
+:func:`homogenization.fft.homogenize_fft` (``scheme="pcg"``, the nodal Green-preconditioned CG) with an isotropic
+solid of
 ``E_s = 1`` and ``ν_s = 0.3`` and a void of zero stiffness, so every modulus in the table is already
 normalised by the solid's Young's modulus (it scales linearly with ``E_s``; ``ν_s`` is fixed).
+
+The voxels are fully integrated trilinear hexahedra (``discretization="hex8"``, :data:`DEFAULT_DISCRETIZATION`) unless
+a sweep asks for the rotated scheme (one-point voxels, ``"rotated"``), with which every shipped table was made (its
+rows have no ``discretization`` column and its provenance records ``"rotated"``; pcg reproduces the iterates of the
+strain CG ``"cg"`` they were computed with, at half the FFT work). :func:`recorded_settings` reads back the settings
+of a table from its provenance, so that regenerating a shipped table recomputes its own discretization, not
+today's default.
 
 A row holds the inputs, the measured solid fraction, the 21 independent entries of the Voigt ``C``, the
 engineering constants (E1..E3, G23, G13, G12, ν_ij), the closest transversely isotropic stiffness with its
@@ -73,6 +80,10 @@ SCHEME = "pcg"
 #: The discretizations a sweep may use: the rotated scheme (one-point voxels, the shipped tables) or fully
 #: integrated trilinear voxels (``"hex8"``), both solved by the nodal Green-preconditioned CG.
 SWEEP_DISCRETIZATIONS = ("rotated", "hex8", "bracket")
+#: The discretization of a new sweep (:class:`SweepSettings`, ``fenicsfoam table``): every table sample has a void
+#: (or, with ``pore_modulus``, a soft) phase, on which fully integrated voxels reach the converged moduli on a coarser
+#: grid in a fraction of the iterations (docs/benchmarks/2026-11-27-void-homogenization.md).
+DEFAULT_DISCRETIZATION = "hex8"
 #: the moduli whose rotated … hex8 bracket a ``"bracket"`` row records (``bracket_<name>``, relative half width)
 BRACKETED = ("E1", "E2", "E3", "G23", "G13", "G12", "ti_E_t", "ti_E_l", "ti_G_l", "iso_E")
 #: The shipped tables (package data).
@@ -119,10 +130,12 @@ class SweepSettings:
         normal to x at γ = 0.1; :meth:`VoronoiFoam.grid_shape`). Its samples and table carry the grid in their
         names (``N60x300x300``) and ``resolution`` column.
     discretization
-        ``"rotated"`` (default; one-point trilinear voxels, converging to the moduli from below) or ``"hex8"``
-        (fully integrated trilinear voxels, from above; fewer CG iterations on void foams). A ``hex8`` sweep's
-        table name ends in ``_hex8``, its cache entries carry it in their names and hash, and its rows hold a
-        ``discretization`` column. ``"bracket"``: both on the same voxels, the sample's ``C`` their mean, and for
+        ``"hex8"`` (default, :data:`DEFAULT_DISCRETIZATION`; fully integrated trilinear voxels, converging to the
+        moduli from above, with far fewer CG iterations on void foams) or ``"rotated"`` (one-point trilinear voxels,
+        from below; the shipped tables). A ``hex8`` sweep's table name ends in ``_hex8``, its cache entries carry it
+        in their names and hash, and its rows hold a ``discretization`` column; a ``rotated`` sweep's names and
+        rows are those of the shipped tables (no suffix, no column). ``"bracket"``: both on the same voxels, the
+        sample's ``C`` their mean, and for
         each modulus of :data:`BRACKETED` the relative half width of the bracket, ``bracket_<name> = |q_hex8 −
         q_rotated| / (q_hex8 + q_rotated)`` (the two converge to the moduli from opposite sides, so the midpoint's
         resolution error is at most about that); :func:`bracket_samples` makes the same rows from a rotated and a
@@ -144,7 +157,7 @@ class SweepSettings:
     distance: str = "euclidean"
     maxiter: int | None = None
     cubic: bool = True
-    discretization: str = "rotated"
+    discretization: str = DEFAULT_DISCRETIZATION
     pore_modulus: float = 0.0
 
     @property
@@ -715,6 +728,55 @@ def write_tables(rows: Sequence[dict], out_dir: str | os.PathLike, provenance: d
 def settings_dict(settings: SweepSettings) -> dict:
     """The settings as recorded in the provenance, with the fixed solver choices."""
     return asdict(settings) | {"nu_solid": NU_SOLID, "scheme": SCHEME}
+
+
+def recorded_settings(name: str, directory: str | os.PathLike = DATA_DIR) -> dict[float, SweepSettings]:
+    """The sweep settings per γ with which the table ``name`` in ``directory`` was made, read from its provenance.
+
+    Regenerating a table (a shipped one by default) with these settings recomputes its own samples, whatever
+    today's defaults: a provenance that records no discretization (tables made before the choice existed) means
+    ``"rotated"``. The provenance's ``settings_per_gamma`` (or its one ``settings`` for every γ) must agree with
+    the inputs recorded in every sample row (:func:`settings_from_row`); ``maxiter``, which rows do not record,
+    comes from the provenance. Raises :class:`~foambase.errors.InputError` naming the table for a provenance that
+    is missing, unreadable, has no settings for a γ of its samples (a merged table has one per source) or
+    disagrees with its rows.
+    """
+    paths = table_paths(name, directory)
+    try:
+        provenance = json.loads(paths["provenance"].read_text())
+    except (OSError, ValueError) as exc:
+        raise InputError(f"foam table {name!r}: provenance {str(paths['provenance'])!r} unreadable ({exc})") from exc
+    try:
+        with open(paths["samples"], newline="") as f:  # the oldest tables have no box, distance columns
+            rows = [{"box": "cube", "distance": "euclidean"} | {k: _parse_cell(v) for k, v in row.items()}
+                    for row in csv.DictReader(f)]
+    except OSError as exc:
+        raise InputError(f"foam table {name!r}: samples {str(paths['samples'])!r} unreadable ({exc})") from exc
+    per_gamma = provenance.get("settings_per_gamma") if isinstance(provenance, dict) else None
+    common = provenance.get("settings") if isinstance(provenance, dict) else None
+    fields = SweepSettings.__dataclass_fields__
+    out: dict[float, SweepSettings] = {}
+    for row in rows:
+        gamma = float(row["gamma"])
+        recorded = (per_gamma or {}).get(str(gamma), common)
+        if not isinstance(recorded, dict):
+            raise InputError(f"foam table {name!r}: its provenance records no settings for gamma {gamma:g}")
+        from_row = settings_from_row(row)
+        kwargs = {k: v for k, v in recorded.items() if k in fields} | {"discretization": recorded.get(
+            "discretization", "rotated")}
+        if isinstance(kwargs.get("resolution"), list):
+            kwargs["resolution"] = tuple(kwargs["resolution"])
+        kwargs.setdefault("cubic", from_row.cubic)
+        try:
+            settings = SweepSettings(**kwargs)
+        except InputError as exc:
+            raise InputError(f"foam table {name!r}, gamma {gamma:g}: recorded settings unusable ({exc})") from exc
+        if _cache_key(Sample(row["density"], gamma, row["seed"]), settings) != _cache_key(
+                Sample(row["density"], gamma, row["seed"]), from_row):
+            raise InputError(f"foam table {name!r}, gamma {gamma:g}: the provenance's settings {settings} are not "
+                             f"those of its sample rows {from_row}")
+        out.setdefault(gamma, settings)
+    return dict(sorted(out.items()))
 
 
 def _parse_cell(text: str):

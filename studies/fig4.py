@@ -210,7 +210,7 @@ def figure(path: Path, rows: list[dict], tables: dict, samples: list[dict]) -> P
         for h, lab in zip(*ax.get_legend_handles_labels()):
             handles.setdefault(lab, h)
     fig.legend(list(handles.values()), list(handles), loc="lower center", ncol=len(handles), fontsize=8)
-    fig.suptitle("Fig. 4 of the paper (squares) against the shipped foam tables (lines ± seed std; points: "
+    fig.suptitle("Fig. 4 of the paper (squares) against foam tables (lines ± seed std; points: "
                  "single-density tables) and candidate samples (▲ hex8, ▼ rotated; seed 0) — moduli / E_s, "
                  "ν_s = 0.3, l = x", fontsize=10)
     fig.tight_layout(rect=(0, 0.05, 1, 0.96))

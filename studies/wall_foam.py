@@ -229,7 +229,8 @@ def main(argv=None) -> int:
                    help="table: each --grid is the grid at this density, scaled by REF/density at the others "
                         "(tables.scaled_resolution: constant voxels across a wall)")
     p.add_argument("--discretization", choices=tables.SWEEP_DISCRETIZATIONS, default="rotated",
-                   help="voxels: rotated (one-point, from below) or hex8 (fully integrated, from above)")
+                   help="voxels: rotated (default here: the shipped table's, one-point, from below) or hex8 (fully "
+                        "integrated, from above; the library's default for new tables)")
     p.add_argument("--pore-modulus", type=float, default=0.0,
                    help="Young's modulus of the pores / E_s (default 0: void pores; 0.0045 reproduces the paper's "
                         "Fig. 4, docs/validation/2026-11-27-fig4.md section 7); the table name ends in _pores...")

@@ -129,13 +129,37 @@ def test_usage_errors_exit_2_and_help_lists_the_exit_codes(capsys):
 
 
 def test_table_writes_the_three_files(tmp_path):
+    """A table made with the defaults is a hex8 table: its name, rows and provenance say so, and its recorded
+    settings read back are the run's; --discretization rotated writes the shipped tables' names."""
+    from homogenization import tables
+
     out = tmp_path / "table"
-    assert main(["table", "--densities", "0.3", "--gammas", "1", "--seeds", "0", "--cells", "3", "--resolution", "16",
-                 "--threads", "1", "--out", str(out)]) == 0
-    assert sorted(p.name for p in out.iterdir()) == ["cache", "foam_table.csv", "foam_table_provenance.json",
-                                                     "foam_table_samples.csv"]
-    provenance = json.loads((out / "foam_table_provenance.json").read_text())
+    args = ["table", "--densities", "0.3", "--gammas", "1", "--seeds", "0", "--cells", "3", "--resolution", "16",
+            "--threads", "1"]
+    assert main([*args, "--out", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["cache", "foam_table_cube_hex8.csv",
+                                                     "foam_table_cube_hex8_provenance.json",
+                                                     "foam_table_cube_hex8_samples.csv"]
+    provenance = json.loads((out / "foam_table_cube_hex8_provenance.json").read_text())
     assert provenance["n_samples"] == 1 and provenance["settings"]["resolution"] == 16
+    assert provenance["settings"]["discretization"] == "hex8"
+    assert tables.read_samples(out / "foam_table_cube_hex8_samples.csv")[0]["discretization"] == "hex8"
+    assert tables.recorded_settings("cube_hex8", out) == {
+        1.0: tables.SweepSettings(n_cells=3, resolution=16, tol=1e-4, discretization="hex8")}
+    rotated = tmp_path / "rotated"
+    assert main([*args, "--discretization", "rotated", "--out", str(rotated)]) == 0
+    assert sorted(p.name for p in rotated.iterdir()) == ["cache", "foam_table.csv", "foam_table_provenance.json",
+                                                         "foam_table_samples.csv"]
+    assert tables.recorded_settings("cube", rotated)[1.0].discretization == "rotated"
+
+
+@pytest.mark.parametrize("command", ["table", "homogenize"])
+def test_help_states_the_default_discretization(command, capsys):
+    with pytest.raises(SystemExit) as info:
+        main([command, "--help"])
+    assert info.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "--discretization" in text and "default hex8" in text
 
 
 def test_run_with_a_bad_scene_exits_2_under_mpirun(bad_scene, tmp_path):

@@ -229,8 +229,8 @@ def test_sweep_with_hex8_has_its_own_table_cache_entries_and_rows(tmp_path):
     from homogenization import tables
 
     sample = tables.Sample(0.3, 1.0, 1)
-    rotated = tables.SweepSettings(n_cells=3, resolution=12, tol=1e-5)
-    hex8 = tables.SweepSettings(n_cells=3, resolution=12, tol=1e-5, discretization="hex8")
+    rotated = tables.SweepSettings(n_cells=3, resolution=12, tol=1e-5, discretization="rotated")
+    hex8 = tables.SweepSettings(n_cells=3, resolution=12, tol=1e-5)  # the default
     assert (rotated.name, hex8.name) == ("cube", "cube_hex8")
     assert tables.cache_name(sample, rotated) != tables.cache_name(sample, hex8)
     [a] = tables.run_sweep([sample], rotated, tmp_path, MPI.COMM_SELF, progress=False, threads=1)

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from homogenization.cli import main
+from homogenization.cli import HOMOGENIZE_DISCRETIZATION, main
 from homogenization.fft import homogenize_fft
 from homogenization.tensors import closest_transverse_isotropic, isotropic_voigt
 
@@ -35,7 +35,8 @@ def test_image_to_json(image_file, tmp_path, capsys):
     data = json.loads(out.read_text())
     C = np.array(data["C"])
     materials = [np.zeros((6, 6)), isotropic_voigt(2.0, 0.25)]
-    library = homogenize_fft(porous_image().astype(np.int8), materials, tol=1e-8, threads=1)
+    library = homogenize_fft(porous_image().astype(np.int8), materials, tol=1e-8, threads=1,
+                             discretization=HOMOGENIZE_DISCRETIZATION)
     expected = library.C
     assert np.allclose(C, expected, rtol=1e-12, atol=1e-14)
     ti = closest_transverse_isotropic(expected, axis=0)
@@ -44,8 +45,9 @@ def test_image_to_json(image_file, tmp_path, capsys):
     assert data["ti_fit"]["error"] == pytest.approx(ti.error, rel=1e-6, abs=1e-12)
     assert data["engineering_constants"]["E1"] > data["engineering_constants"]["E2"]  # channel along x
     assert data["inputs"]["E_solid"] == 2.0 and data["inputs"]["image"] == str(image_file)
-    # the library's default solver, which is pcg, the documented default of the rotated discretization
-    assert data["info"]["scheme"] == library.info["scheme"] == "pcg" and data["info"]["discretization"] == "rotated"
+    # the command's default voxels, fully integrated (the library's default stays rotated), solved by pcg
+    assert HOMOGENIZE_DISCRETIZATION == "hex8" and data["inputs"]["discretization"] == "hex8"
+    assert data["info"]["scheme"] == library.info["scheme"] == "pcg" and data["info"]["discretization"] == "hex8"
     assert len(data["iterations"]) == 6 and data["converged"] is True
     assert data["software"]["fenicsfoam"] and data["solid_fraction"] == pytest.approx(porous_image().mean())
     assert "isotropic_fit" in data and data["info"]["time_per_iteration_s"] > 0
@@ -153,7 +155,7 @@ def test_foam_path(tmp_path):
     data = json.loads(out.read_text())
     image = foam_module.VoronoiFoam(n_cells=4, density=0.3, gamma=0.5, seed=2).voxelize(16)
     expected = homogenize_fft(image.astype(np.int8), [np.zeros((6, 6)), isotropic_voigt(1.0, 0.3)],
-                              tol=1e-4, threads=1).C  # the command's defaults
+                              tol=1e-4, threads=1, discretization=HOMOGENIZE_DISCRETIZATION).C  # the command's defaults
     assert np.allclose(np.array(data["C"]), expected, rtol=1e-10, atol=1e-14)
     assert data["inputs"]["density"] == 0.3 and data["inputs"]["gamma"] == 0.5
     assert data["solid_fraction"] == pytest.approx(image.mean())
@@ -171,7 +173,7 @@ def wall_foam_stiffness(tol: float) -> tuple[np.ndarray, np.ndarray]:
                        box="equiaxed", distance="polyhedral")
     image = foam.voxelize(WALL_FOAM["resolution"]).astype(np.int8)
     C = homogenize_fft(image, [np.zeros((6, 6)), isotropic_voigt(1.0, 0.3)], tol=tol, threads=1,
-                       box=tuple(foam.box)).C
+                       box=tuple(foam.box), discretization=HOMOGENIZE_DISCRETIZATION).C
     return C, image
 
 
@@ -224,7 +226,8 @@ def test_distributed_run_matches_serial(tmp_path):
     assert main(["--image", str(folder / "img.npy"), "--tol", "1e-10", "--threads", "1", "--out", str(out)]) == 0
     comm.Barrier()
     data = json.loads(out.read_text())
-    expected = homogenize_fft(image.astype(np.int8), materials, tol=1e-10, threads=1).C
+    expected = homogenize_fft(image.astype(np.int8), materials, tol=1e-10, threads=1,
+                              discretization=HOMOGENIZE_DISCRETIZATION).C
     assert np.abs(np.array(data["C"]) - expected).max() < 1e-10 * np.abs(expected).max()
     assert data["info"].get("ranks", 1) == comm.Get_size()
     assert data["solid_fraction"] == pytest.approx(image.mean())
@@ -235,7 +238,8 @@ def test_distributed_run_matches_serial(tmp_path):
     assert main([f"--{k}={v}" for k, v in args.items()] + ["--threads", "1", "--out", str(out)]) == 0
     comm.Barrier()
     foam = foam_module.VoronoiFoam(n_cells=4, density=0.3, gamma=0.5, seed=2).voxelize(16)
-    expected = homogenize_fft(foam.astype(np.int8), materials, tol=1e-4, threads=1).C  # the command's defaults
+    expected = homogenize_fft(foam.astype(np.int8), materials, tol=1e-4, threads=1,
+                              discretization=HOMOGENIZE_DISCRETIZATION).C  # the command's defaults
     assert np.abs(np.array(json.loads(out.read_text())["C"]) - expected).max() < 1e-10 * np.abs(expected).max()
 
 

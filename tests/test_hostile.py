@@ -843,7 +843,7 @@ def cached_row(tmp_path):
         isotropic_voigt,
     )
 
-    settings = tables.SweepSettings(n_cells=3, resolution=16, tol=1e-5)
+    settings = tables.SweepSettings(n_cells=3, resolution=16, tol=1e-5, discretization="rotated")  # no such column
     sample = tables.Sample(0.3, 1.0, 1)
     C = isotropic_voigt(0.02, 0.3)
     C[0, 0] *= 1.1

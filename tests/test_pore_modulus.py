@@ -15,15 +15,18 @@ def test_sweep_with_stiff_pores_is_the_fft_of_its_image_with_that_pore_phase_and
     from meshes.foam import VoronoiFoam
 
     sample = tables.Sample(0.3, 1.0, 1)
-    void = tables.SweepSettings(n_cells=3, resolution=12, tol=1e-6)
-    pores = tables.SweepSettings(n_cells=3, resolution=12, tol=1e-6, pore_modulus=0.01)
+    rotated = {"discretization": "rotated"}  # the shipped tables' voxels, homogenize_fft's default (compared below)
+    void = tables.SweepSettings(n_cells=3, resolution=12, tol=1e-6, **rotated)
+    pores = tables.SweepSettings(n_cells=3, resolution=12, tol=1e-6, pore_modulus=0.01, **rotated)
     # void pores keep the historical names and cache keys; stiff pores get their own
     assert tables.cache_name(sample, void) == tables.cache_name(sample, tables.SweepSettings(
-        n_cells=3, resolution=12, tol=1e-6, pore_modulus=0.0))
+        n_cells=3, resolution=12, tol=1e-6, pore_modulus=0.0, **rotated))
     assert (void.name, pores.name) == ("cube", "cube_pores0p01")
     assert tables.cache_name(sample, void) != tables.cache_name(sample, pores)
-    assert tables.SweepSettings(box="equiaxed", distance="polyhedral", pore_modulus=0.0045).name == \
+    assert tables.SweepSettings(box="equiaxed", distance="polyhedral", pore_modulus=0.0045, **rotated).name == \
         "equiaxed_polyhedral_pores0p0045"
+    assert tables.SweepSettings(box="equiaxed", distance="polyhedral", pore_modulus=0.0045).name == \
+        "equiaxed_polyhedral_hex8_pores0p0045"  # the default voxels
     tables.table_paths("equiaxed_polyhedral_pores0p0045")  # a valid table name
     [b] = tables.run_sweep([sample], pores, tmp_path, MPI.COMM_SELF, progress=False, threads=1)
     assert b["pore_modulus"] == 0.01

@@ -303,9 +303,13 @@ def test_a_table_that_is_not_a_full_grid_is_refused(table, tmp_path):
 
 
 def test_sweep_settings_name_their_table():
-    assert tables.SweepSettings().name == "cube"
-    assert tables.SweepSettings(box="equiaxed").name == "equiaxed"
-    assert tables.SweepSettings(box="equiaxed", distance="polyhedral").name == "equiaxed_polyhedral"
+    """The rotated scheme's tables keep the shipped names; the default (hex8) ones carry their voxels' name."""
+    rotated = {"discretization": "rotated"}
+    assert tables.SweepSettings(**rotated).name == "cube"
+    assert tables.SweepSettings(box="equiaxed", **rotated).name == "equiaxed"
+    assert tables.SweepSettings(box="equiaxed", distance="polyhedral", **rotated).name == "equiaxed_polyhedral"
+    assert tables.SweepSettings().discretization == tables.DEFAULT_DISCRETIZATION == "hex8"
+    assert tables.SweepSettings(box="equiaxed", distance="polyhedral").name == "equiaxed_polyhedral_hex8"
     assert tables.table_paths("cube")["table"] == tables.TABLE_CSV
     assert tables.table_paths("equiaxed", "/d")["samples"].as_posix() == "/d/foam_table_equiaxed_samples.csv"
     with pytest.raises(ValueError, match=r"box must be 'cube' or 'equiaxed', got 'long'"):
@@ -409,3 +413,60 @@ def test_csv_round_trips_text_with_commas_and_floats_exactly(tmp_path):
     back = tables.read_csv(tables.to_csv(rows, tmp_path / "t.csv"))
     assert list(back["note"]) == [r["note"] for r in rows] and list(back["name"]) == ["beam_ti_z", "plain"]
     assert list(back["x"]) == [0.1 + 0.2, -1e-300]
+
+
+# --------------------------------------------------------------------------------------------------
+# The default discretization and the shipped tables' recorded one
+# --------------------------------------------------------------------------------------------------
+def test_shipped_tables_record_the_rotated_scheme_and_regenerate_with_it():
+    """Every shipped table was made with the rotated scheme: its provenance says so (or, made before the choice,
+    says nothing, which means rotated), it agrees with every sample row, and the settings read back name the
+    shipped table itself, not a table of today's default (hex8)."""
+    assert tables.DEFAULT_DISCRETIZATION == "hex8"
+    for name in tables.shipped_tables():
+        recorded = tables.recorded_settings(name)
+        samples = tables.read_csv(tables.table_paths(name)["samples"])
+        assert sorted(recorded) == sorted(set(samples["gamma"].tolist())), name
+        for settings in recorded.values():
+            assert settings.discretization == "rotated" and settings.name == name, (name, settings)
+    polyhedral = tables.recorded_settings("equiaxed_polyhedral")
+    assert polyhedral[0.1].resolution == (60, 300, 300) and not polyhedral[0.1].cubic
+    assert polyhedral[0.1].maxiter == 20000 and polyhedral[1.0].resolution == 96
+
+
+def test_recorded_settings_refuse_a_provenance_that_is_not_the_rows(tmp_path):
+    """A table whose provenance has no settings, or settings that are not those of its rows, is refused by name."""
+    import json
+    import shutil
+
+    src = tables.table_paths("equiaxed")
+    dst = tables.table_paths("equiaxed", tmp_path)
+    for key in ("samples", "table"):
+        shutil.copy(src[key], dst[key])
+    provenance = json.loads(src["provenance"].read_text())
+    provenance["settings_per_gamma"]["0.1"]["tol"] = 1e-4
+    dst["provenance"].write_text(json.dumps(provenance))
+    with pytest.raises(ValueError, match=r"foam table 'equiaxed', gamma 0.1: the provenance's settings .* are not "
+                                         r"those of its sample rows"):
+        tables.recorded_settings("equiaxed", tmp_path)
+    del provenance["settings_per_gamma"]
+    dst["provenance"].write_text(json.dumps(provenance))
+    with pytest.raises(ValueError, match=r"foam table 'equiaxed': its provenance records no settings for gamma"):
+        tables.recorded_settings("equiaxed", tmp_path)
+    dst["provenance"].unlink()
+    with pytest.raises(ValueError, match=r"foam table 'equiaxed': provenance .* unreadable"):
+        tables.recorded_settings("equiaxed", tmp_path)
+
+
+@pytest.mark.slow  # one 48³ sample of the shipped cube table
+def test_a_shipped_sample_recomputed_with_its_recorded_settings_is_the_shipped_one():
+    """Regenerating a shipped table reads its recorded settings: the cube table's sample (0.3, 0.1, seed 0)
+    recomputed with them is the shipped row to the solver's round-off (pcg reproduces the cg it was made with)."""
+    samples = tables.read_csv(tables.SAMPLES_CSV)
+    i = int(np.flatnonzero((samples["density"] == 0.3) & (samples["gamma"] == 0.1) & (samples["seed"] == 0))[0])
+    settings = tables.recorded_settings("cube")[0.1]
+    row = tables.homogenize_sample(tables.Sample(0.3, 0.1, 0), settings, threads=1)
+    shipped = np.array([samples[c][i] for c in tables.C_ENTRIES])
+    got = np.array([row[c] for c in tables.C_ENTRIES])
+    assert np.abs(got - shipped).max() < 1e-6 * np.abs(shipped).max()
+    assert "discretization" not in row
