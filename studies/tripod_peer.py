@@ -365,6 +365,9 @@ def main(argv=None) -> int:
     t = sub.add_parser("table", help="the convergence table of earlier converge runs' CSV files, merged")
     t.add_argument("csv", type=Path, nargs="+")
     t.add_argument("--out", type=Path)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or (argv[0].startswith("-") and argv[0] not in ("-h", "--help", "-v", "--verbose")):
+        argv = ["converge", *argv]  # `tripod_peer.py --ci --out DIR`, as every study is run: the convergence study
     args = parser.parse_args(argv)
     setup_logging(args.verbose)
     comm = MPI.COMM_WORLD
