@@ -12,8 +12,8 @@ MUTATIONS: tuple[Mutation, ...] = (
     # ---- the data pipeline: foam → voxels → FFT → table → materials -------------------------------------------
     Mutation(
         "table-ti-axis-z", "homogenization/tables.py",
-        "ti = closest_transverse_isotropic(r.C, axis=(1.0, 0.0, 0.0))",
-        "ti = closest_transverse_isotropic(r.C, axis=(0.0, 0.0, 1.0))",
+        "ti = closest_transverse_isotropic(C, axis=(1.0, 0.0, 0.0))",
+        "ti = closest_transverse_isotropic(C, axis=(0.0, 0.0, 1.0))",
         "the table's TI fit taken about z instead of the foam's distinct axis x",
         targets=("tests/test_tables.py::test_sample_row_fits_ti_about_the_foams_x_axis",)),
     Mutation(
