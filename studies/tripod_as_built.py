@@ -69,12 +69,24 @@ def scene_dict(name: str, h: float, model: str, layout: float | None = None, cla
 def run(name: str, h: float, model: str, layout: str | None, comm, clamp: str = "box") -> dict:
     row = {"scene": name, "layout": layout or "", "h_mm": h * 1e3, "model": model, "clamp": clamp, "status": "ok"}
     start = time.perf_counter()
-    scene = parse_scene(scene_dict(name, h, model, None if layout is None else LAYOUTS[layout], clamp))
+    run_changes(parse_scene(scene_dict(name, h, model, None if layout is None else LAYOUTS[layout], clamp)), comm,
+                row)
+    row["wall_s"] = comm.allreduce(time.perf_counter() - start, op=MPI.MAX)
+    return row
+
+
+def run_changes(scene, comm, row: dict):
+    """Run an as-built Tripod scene into ``row``: its status, the rest pose and the changes from rest.
+
+    A failed step is recorded in ``row["status"]`` (the step, the fraction of it reached, the reason and any cells
+    that lost ellipticity), not raised. ``rest_h_mm``/``rest_deg`` and ``dh_<step>_mm``/``da_<step>_deg`` for
+    ``middle`` and ``top`` are set for the steps that finished. Returns the run's result (``None`` after a failure).
+    """
     try:
         result = run_scene(scene, comm=comm)
         steps = result.steps
     except ConvergenceError as exc:
-        steps = []
+        result, steps = None, []
         lost = "" if exc.ellipticity is None else f", ellipticity lost in {exc.ellipticity.lost_cells} cells"
         row["status"] = f"{exc.step} failed at {exc.load_factor:.1%} ({exc.reason}{lost})"
     values = {s.label: (s.probes["center_height"] * 1e3, s.probes["center_rotation"]) for s in steps}
@@ -84,8 +96,7 @@ def run(name: str, h: float, model: str, layout: str | None, comm, clamp: str = 
             if label in values:
                 row[f"dh_{label}_mm"] = values[label][0] - values["rest"][0]
                 row[f"da_{label}_deg"] = values[label][1] - values["rest"][1]
-    row["wall_s"] = comm.allreduce(time.perf_counter() - start, op=MPI.MAX)
-    return row
+    return result
 
 
 def cases(sizes, ci: bool, models: list[str] | None = None):

@@ -59,8 +59,7 @@ import tripod_as_built  # noqa: E402
 from tripod_models import PAPER_FOAM  # noqa: E402
 
 from fenicsfoam.paper import table_i_changes  # noqa: E402
-from fenicsfoam.scene import parse_scene, run_scene  # noqa: E402
-from fenicsfoam.solver import ConvergenceError  # noqa: E402
+from fenicsfoam.scene import parse_scene  # noqa: E402
 from foambase.cli import report_checks  # noqa: E402
 from foambase.logs import setup_logging  # noqa: E402
 
@@ -137,22 +136,11 @@ def run_one(case: str, h: float, model: str, degree: int, comm, petsc: dict | No
     row = {"case": case, "foam": foam, "model": model, "degree": degree, "h_mm": h * 1e3,
            "variant": variant, "status": "ok"}
     start, cpu = time.perf_counter(), time.process_time()
-    scene = parse_scene(peer_scene_dict(case, h, model, degree, petsc, peer, tables))
-    try:
-        result = run_scene(scene, comm=comm)
-        steps = result.steps
+    result = tripod_as_built.run_changes(parse_scene(peer_scene_dict(case, h, model, degree, petsc, peer, tables)),
+                                         comm, row)
+    steps = [] if result is None else result.steps
+    if result is not None:
         row["n_cells"], row["n_dofs"] = result.n_cells, result.n_dofs
-    except ConvergenceError as exc:
-        steps = []
-        lost = "" if exc.ellipticity is None else f", ellipticity lost in {exc.ellipticity.lost_cells} cells"
-        row["status"] = f"{exc.step} failed at {exc.load_factor:.1%} ({exc.reason}{lost})"
-    values = {s.label: (s.probes["center_height"] * 1e3, s.probes["center_rotation"]) for s in steps}
-    if "rest" in values:
-        row["rest_h_mm"], row["rest_deg"] = values["rest"]
-        for label in ("middle", "top"):
-            if label in values:
-                row[f"dh_{label}_mm"] = values[label][0] - values["rest"][0]
-                row[f"da_{label}_deg"] = values[label][1] - values["rest"][1]
     row["newton"] = "/".join(str(s.newton_iterations) for s in steps)
     row["wall_s"] = comm.allreduce(time.perf_counter() - start, op=MPI.MAX)
     row["cpu_s"] = comm.allreduce(time.process_time() - cpu, op=MPI.SUM)
