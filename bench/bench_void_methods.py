@@ -258,6 +258,16 @@ def gamg_rows(tol: float) -> list[dict]:
     return rows
 
 
+def write_rows(rows: list[dict], path: Path) -> None:
+    """Rows as CSV (the first row's columns), written atomically; says where."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    print(f"wrote {path}")
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=Path, required=True)
@@ -286,22 +296,10 @@ def main(argv=None) -> int:
         gamg_rows(a.tol)
         return 0
     if a.inclusion:
-        rows = inclusion_rows(a.contrasts, a.inclusion_grids, a.inclusion_tol)
-        a.out.mkdir(parents=True, exist_ok=True)
-        with atomic_open(a.out / "inclusion.csv", "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-            writer.writeheader()
-            writer.writerows(rows)
-        print(f"wrote {a.out / 'inclusion.csv'}")
+        write_rows(inclusion_rows(a.contrasts, a.inclusion_grids, a.inclusion_tol), a.out / "inclusion.csv")
         return 0
     if a.hinges:
-        rows = hinge_rows(a.hinge_seeds)
-        a.out.mkdir(parents=True, exist_ok=True)
-        with atomic_open(a.out / "hinges.csv", "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-            writer.writeheader()
-            writer.writerows(rows)
-        print(f"wrote {a.out / 'hinges.csv'}")
+        write_rows(hinge_rows(a.hinge_seeds), a.out / "hinges.csv")
         return 0
     settings = {"cells": a.cells, "density": a.density, "seed": a.seed, "tol": a.tol, "maxiter": a.maxiter}
     jobs = [(foam, gamma, size, method) for foam in a.foams for gamma in a.gammas
