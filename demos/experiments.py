@@ -142,7 +142,7 @@ def foam_regions(data: dict) -> list[dict]:
 
 
 def table_label(region: dict) -> str:
-    """The foam table a foam region reads: the shipped name (``"cube"`` without a ``table`` key) or the CSV path."""
+    """The foam table a foam region reads: the shipped name (the default table without a ``table`` key) or the path."""
     return resolve_table(region.get("table"))[0]
 
 
