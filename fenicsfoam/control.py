@@ -32,12 +32,20 @@ Method, with exact derivatives ``G = ∂f/∂θ`` of the targets (one adjoint so
    (``scipy.optimize.lsq_linear``) instead (Gauss–Newton towards the closest pose); where that is stationary
    (projected gradient zero) or no step decreases the misfit, the targets are out of reach:
    :class:`UnreachableTargetError`.
-2. *Least motion* (fewer targets than servos): at a point that meets the targets, the reduced gradient
-   ``Zᵀ(θ − θ⁰)`` (``Z`` an orthonormal basis of the null space of ``G``, the level set's tangent) vanishes at the
-   least-motion solution (its KKT condition). Otherwise a quasi-Newton step ``−Z H⁻¹ Zᵀ(θ − θ⁰)`` along the
-   tangent (``H`` by damped BFGS from successive reduced gradients; lengthened while the level set shows no
-   positive curvature, at most 10°), then restoration; accepted if the motion ``|θ − θ⁰|`` decreased, else halved.
-   Converged when the reduced gradient is below 1e-5 deg.
+2. *Least motion* (fewer targets than servos): at a point that meets the targets, the KKT residual — the step
+   ``argmin ½|δ|² + (θ − θ⁰)ᵀδ`` subject to ``G δ = 0`` and the box, i.e. ``−Z Zᵀ(θ − θ⁰)`` (``Z`` an orthonormal
+   basis of the null space of ``G``, the level set's tangent) where no bound is active — vanishes at the
+   least-motion solution. Otherwise a quasi-Newton step along the tangent within the box (the same QP with the
+   metric ``Z H Zᵀ + Y Yᵀ``, i.e. ``−Z H⁻¹ Zᵀ(θ − θ⁰)`` where no bound is active; ``H`` the reduced Hessian of
+   ``½|θ − θ⁰|²`` on the level set by damped BFGS from successive reduced gradients, lengthened while the level
+   set shows no positive curvature, at most 10°), then restoration; accepted if the motion decreased, else
+   halved. The motion compared is that of the nearest point of the linearised level set,
+   ``|θ − G⁺W(f − t) − θ⁰|``: θ meets the targets only within their tolerance, up to ``|G⁺ W tol|`` off the level
+   set, which changes ``|θ − θ⁰|`` to first order by more than a short tangent step gains (the comparison would
+   then reject good steps at random), while the corrected motion is off by its square. Converged when the KKT
+   residual is below ``max(1e-5, |G⁺ W tol|_∞)`` (in the unknowns' units: the targets' tolerance resolves the
+   tangent no finer); a step that finds no shorter motion before that is :class:`NotConvergedError`, as is
+   running out of iterations (``max_iterations``). ``ControlResult.kkt_residual`` is the residual at the result.
 3. *Symmetric poses*: at equal angles of a D3-symmetric plate the targets' gradients can be parallel (height and
    twist of case B), so no first-order step meets both; the iteration then steps 1° along a fixed direction
    (``(1, 0, −1)`` made orthogonal to the gradients; fixed, so that serial and MPI runs take the same path) and
@@ -89,7 +97,7 @@ SCALAR_TARGETS: dict[str, str] = {"tip_deflection": "m"}
 COMPONENT_UNITS: dict[str, str] = {"displacement": "m", "contact_force": "N"}
 #: Default servo range (deg): the paper's poses are 0° (rest), 19° (middle), 38° (top); a modelling choice with margin.
 SERVO_RANGE: tuple[float, float] = (-20.0, 60.0)
-_MOTION_TOL = 1e-5   # deg: the least-motion iteration is converged when a step moves less
+_MOTION_TOL = 1e-5   # deg: the least-motion KKT residual's tolerance (or the targets' resolution, if coarser)
 _STALL_TOL = 1e-9    # deg: a step this small with the targets unmet means the iteration is stationary
 _RANK_TOL = 1e-7     # the targets' gradients are rank deficient when σ_min <= _RANK_TOL σ_max
 _ESCAPE_DEG = 1.0    # deg: the step that leaves a rank-deficient (symmetric) pose
@@ -116,6 +124,8 @@ class ControlResult:
     unknowns: dict[str, float] = field(default_factory=dict)
     bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
     initial: dict[str, float] = field(default_factory=dict)
+    #: with fewer targets than unknowns, the least-motion KKT residual at the result (unknowns' units; None otherwise)
+    kkt_residual: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict: ``servo_deg, target, achieved, iterations, scene_solves`` first."""
@@ -520,6 +530,7 @@ class _Run:
         self.history: list[dict[str, Any]] = []
         self.iterations = 0
         self.escapes = 0
+        self.kkt: float | None = None
 
     # -- bookkeeping ------------------------------------------------------------------------------
     @property
@@ -545,7 +556,7 @@ class _Run:
                              servo_range=self.controller.servo_range, initial_deg=self.theta0[servos].tolist(),
                              history=self.history, unknowns=dict(zip(self.unknowns, self.theta.tolist())),
                              bounds=dict(self.controller.bounds),
-                             initial=dict(zip(self.unknowns, self.theta0.tolist())))
+                             initial=dict(zip(self.unknowns, self.theta0.tolist())), kkt_residual=self.kkt)
 
     def _count(self) -> None:
         self.iterations += 1
@@ -635,6 +646,36 @@ class _Run:
             self.record(float(np.max(np.abs(alpha * step))))
 
     # -- the least-motion iteration ---------------------------------------------------------------
+    def _motion(self, Gw: np.ndarray) -> float:
+        """``|θ_c − θ⁰|²``, ``θ_c = θ − G⁺ W (f − t)`` the nearest point of the linearised level set.
+
+        The targets are met within their tolerance, so θ lies up to ``|G⁺ W tol|`` off the level set; that offset
+        changes ``|θ − θ⁰|²`` to first order (by ``2 |θ − θ⁰| |G⁺ W tol|``, more than a short tangent step gains),
+        while the corrected motion is off by its square only.
+        """
+        correction = -np.linalg.pinv(Gw) @ (self.w * self.misfit)
+        return float(np.sum((self.theta + correction - self.theta0) ** 2))
+
+    def kkt_residual(self, Gw: np.ndarray) -> float:
+        """The least-motion KKT residual, in the unknowns' units.
+
+        The longest component of the step ``argmin ½|δ|² + (θ − θ⁰)ᵀδ`` subject to ``G δ = 0`` and the bounds,
+        i.e. ``−Z Zᵀ(θ − θ⁰)`` (the projected gradient of ``½|θ − θ⁰|²`` onto the level set's tangent) where no
+        bound is active.
+        """
+        step = qp_step(np.eye(self.n), self.theta - self.theta0, Gw, np.zeros(len(self.names)),
+                       self.lo - self.theta, self.hi - self.theta)
+        return float(np.max(np.abs(step[0]))) if step is not None else math.inf
+
+    def kkt_tolerance(self, Gw: np.ndarray) -> float:
+        """The tolerance of the KKT residual, ``max(1e-5, |G⁺ W tol|_∞)``.
+
+        The residual is resolved no finer than the targets' tolerance places θ on the level set: a point off it by
+        ε turns the tangent by about ε times the level set's curvature κ, which changes the residual by about
+        ε |θ − θ⁰| κ, of order ε where the reduced Hessian is of order one.
+        """
+        return max(_MOTION_TOL, float(np.max(np.abs(np.linalg.pinv(Gw)) @ (self.w * self.tol))))
+
     def iterate(self) -> ControlResult:
         """Restoration, then (fewer targets than servos) quasi-Newton steps along the targets' level set."""
         Gw = self.restore()
@@ -646,7 +687,12 @@ class _Run:
         while True:
             Z = _tangent_basis(Gw)
             g = Z.T @ (self.theta - self.theta0)
-            if np.max(np.abs(g)) <= _MOTION_TOL:
+            self.kkt = self.kkt_residual(Gw)
+            tolerance = self.kkt_tolerance(Gw)
+            motion = self._motion(Gw)
+            if self.kkt <= tolerance:
+                logger.info("control: least motion converged, KKT residual %.3g <= %.3g, |θ − θ⁰| = %.9g",
+                            self.kkt, tolerance, math.sqrt(motion))
                 return self.result(True)
             if previous is not None:
                 g_prev, Z_prev, theta_prev = previous
@@ -656,11 +702,19 @@ class _Run:
                     H = _damped_bfgs(np.eye(len(g)) if H is None else H, s_z, y_z)
                 else:  # no positive curvature along the level set (yet): lengthen the steps
                     H, stretch = None, min(2.0 * stretch, 1e3)
-            step = -Z @ np.linalg.solve(np.eye(len(g)) if H is None else H, g)
-            if H is None:
-                step *= stretch
+            reduced = np.eye(len(g)) / stretch if H is None else H
+            # the quasi-Newton step on the tangent within the bounds: the QP with the metric Z H Zᵀ + Y Yᵀ (Y the
+            # targets' row space), which is -Z H⁻¹ g where no bound is active
+            Y = _row_basis(Gw)
+            metric = Z @ reduced @ Z.T + Y @ Y.T
+            qp = qp_step(metric, self.theta - self.theta0, Gw, np.zeros(len(self.names)), self.lo - self.theta,
+                         self.hi - self.theta)
+            step = qp[0] if qp is not None else np.zeros(self.n)
             step *= min(1.0, _MAX_TANGENT_DEG / max(float(np.max(np.abs(step))), 1e-300))
-            distance = float(np.sum((self.theta - self.theta0) ** 2))
+            logger.info("control: least motion at %s: |θ − θ⁰| = %.12g, reduced gradient %s, KKT residual %.3g "
+                        "(tolerance %.3g), reduced Hessian %s, tangent step %.3g", self._where(), math.sqrt(motion),
+                        np.round(g, 9).tolist(), self.kkt, tolerance, np.round(reduced, 6).tolist(),
+                        float(np.max(np.abs(step))))
             state = self.design.problem.snapshot()
             saved = (self.theta.copy(), dict(self.values))
             accepted = False
@@ -674,7 +728,7 @@ class _Run:
                         Gw_new = self.restore()
                     except UnreachableTargetError:
                         Gw_new = None
-                    if Gw_new is not None and float(np.sum((self.theta - self.theta0) ** 2)) < distance:
+                    if Gw_new is not None and self._motion(Gw_new) < motion:
                         accepted = True
                         break
                 # back to the last feasible point, half the step
@@ -682,11 +736,11 @@ class _Run:
                 self.theta, self.values = saved[0].copy(), dict(saved[1])
                 self.controller._set(self.theta)
                 step *= 0.5
-                H, stretch = None, max(0.5 * stretch, 1.0)
+                stretch = max(0.5 * stretch, 1.0)
             if not accepted:
-                logger.info("control: no shorter motion found near %s (reduced gradient %s); stopping there",
-                            self._where(), g.tolist())
-                return self.result(True)
+                raise _NotConverged(f"inverse control: no shorter motion found near {self._where()} (KKT residual "
+                                    f"{self.kkt:.3g} > {tolerance:.3g}, reduced gradient {g.tolist()})",
+                                    self.result(False))
             previous = (g, Z, saved[0])
             Gw = Gw_new
 
@@ -700,6 +754,12 @@ def _escape_direction_n(G: np.ndarray) -> np.ndarray:
         if np.linalg.norm(d) > 0.1:
             return d / np.linalg.norm(d)
     return np.eye(G.shape[1])[0]
+
+
+def _row_basis(G: np.ndarray) -> np.ndarray:
+    """An orthonormal basis (n, m) of the row space of ``G`` (the level set's normal space)."""
+    _, _, Vt = np.linalg.svd(G)
+    return Vt[: G.shape[0]].T
 
 
 def _tangent_basis(G: np.ndarray) -> np.ndarray:

@@ -16,7 +16,7 @@ from mpi4py import MPI
 from fenicsfoam.cli import main
 from fenicsfoam.control import InverseController, UnreachableTargetError, _tangent_basis, control_servos
 from fenicsfoam.scene import parse_scene, run_scene
-from foambase.errors import InputError
+from foambase.errors import InputError, NotConvergedError
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBES = ["center_height", "center_rotation", "center_tilt_x", "center_tilt_y"]
@@ -68,6 +68,17 @@ def test_fewer_targets_give_the_least_motion(forward):
     gradients = controller.design.gradient(list(targets), ["servo0", "servo1", "servo2"])
     G = np.array([[gradients[n][s] for s in ("servo0", "servo1", "servo2")] for n in targets])
     assert np.max(np.abs(_tangent_basis(G).T @ (theta - theta0))) < 1e-4
+
+
+def test_an_unconverged_least_motion_is_an_error(forward, tmp_path):
+    # the same request with too few steps for the least-motion iteration: the targets are met, but not the KKT
+    # condition, so it is an error (exit 3) and control.json holds the last pose with reached = false
+    targets = {k: forward[k] for k in ("center_height", "center_rotation")}
+    with pytest.raises(NotConvergedError, match="did not converge in 12 iterations") as info:
+        control_servos(parse_scene(case_b()), targets, max_iterations=12, out_dir=tmp_path)
+    assert info.value.exit_code == 3 and info.value.closest.kkt_residual > 1e-3
+    written = json.loads((tmp_path / "control.json").read_text())
+    assert written["reached"] is False and written["servo_deg"] == info.value.closest.servo_deg
 
 
 def test_an_unreachable_target_reports_the_closest_pose(tmp_path):
