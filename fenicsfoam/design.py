@@ -580,7 +580,10 @@ def optimize_probe(design: SceneDesign, probe: str, parameters: Sequence[str], b
         Weight of the L-BFGS-B penalty.
 
     Every evaluation is one scene solve (:meth:`SceneDesign.solve`) plus, for the gradient methods, one adjoint
-    factorization and two adjoint solves. The result is the best feasible evaluation; the design is left there.
+    factorization and two adjoint solves. If the method's last design exceeds the bound (an SQP method approaches
+    an active bound from either side) and beats every feasible evaluation, up to three Newton steps on the bounded
+    probe bring it onto the bound (:func:`_restore_bound`). The result is the best feasible evaluation; the design
+    is left there.
 
     """
     from scipy import optimize
@@ -709,6 +712,8 @@ def optimize_probe(design: SceneDesign, probe: str, parameters: Sequence[str], b
         out = optimize.minimize(lambda x: -evaluate(x, False)["objective"], x0, method="COBYLA",
                                 constraints=constraints, callback=record,
                                 options={"maxiter": maxiter, "rhobeg": 0.25, "tol": 1e-6})
+    _restore_bound(evaluate, np.clip(np.asarray(out.x, dtype=float), lower, upper), lower, upper, bound,
+                   max((e["objective"] for e in cache.values() if e["feasible"]), default=-np.inf))
     feasible = [e for e in cache.values() if e["feasible"]]
     best = max(feasible, key=lambda e: e["objective"]) if feasible else initial
     design.set(unpack(best["x"]))
@@ -718,6 +723,32 @@ def optimize_probe(design: SceneDesign, probe: str, parameters: Sequence[str], b
                          for name, s0, n, cellwise in layout}
     return DesignResult(result_parameters, best["objective"], best["change"], initial["objective"],
                         design.solves - solves0, history, str(out.message))
+
+
+def _restore_bound(evaluate, x: np.ndarray, lower: np.ndarray, upper: np.ndarray, bound: float,
+                   best_feasible: float, steps: int = 3) -> None:
+    """Bring the optimiser's last design onto the bound it exceeds, if it beats every feasible evaluation.
+
+    An SQP method's iterates approach an active constraint from either side, so a search stopped by its iteration
+    limit may end just beyond the bound (e.g. 1.000015 mm for 1 mm), better than any feasible design it has
+    evaluated. Newton steps on the bounded probe, least-norm in the scaled parameters and within the box,
+    ``x ← x − (c − c_b) ∇c / |∇c|²`` (``c`` the change, ``c_b = ±bound`` the bound it exceeds), until it is met
+    (at most ``steps``); each step is an evaluation of the search (cached, in its history).
+    """
+    for _ in range(steps):
+        entry = evaluate(x, False)
+        if entry["feasible"] or entry["objective"] <= best_feasible:
+            return
+        if np.any(x < lower - 1e-9) or np.any(x > upper + 1e-9) or abs(entry["change"]) <= bound:
+            return
+        grad = evaluate(x, True)["gradient"][1]
+        norm2 = float(grad @ grad)
+        if not norm2 > 0:
+            return
+        excess = entry["change"] - math.copysign(bound, entry["change"])
+        logger.info("design: the last design exceeds the bound by %.3g; a Newton step onto it", excess)
+        x = np.clip(x - excess * grad / norm2, lower, upper)
+    evaluate(x, False)
 
 
 #: The scale of a probe's misfit in :func:`match_probes` (its units): 1 mm for lengths, 1 degree for angles.

@@ -19,6 +19,7 @@ from foambase.errors import InputError
 
 SCENES = Path(__file__).resolve().parents[1] / "demos" / "scenes"
 UNSEEN = 0.6  # the forward run's pressure factor (12 kPa); the controller starts from the scene's 0.25
+CONTACT = 0.8  # a pressure factor (16 kPa) at which the tip presses on the table (it lands near 0.6)
 
 
 def finger(name="finger_pneumatic", contact=False, factor=0.25):
@@ -31,7 +32,7 @@ def finger(name="finger_pneumatic", contact=False, factor=0.25):
     load = "chamber" if name == "finger_pneumatic" else "tendon"
     data["steps"] = [data["steps"][0], {"label": "actuate", "loads": {load: factor}}]
     data["probes"] = ["displacement:tip"]
-    if contact:  # 4.5 mm under the tip face's bottom edge: the tip lands on it above ~0.35 (7 kPa)
+    if contact:  # 4.5 mm under the tip face's bottom edge: the tip lands on it above ~0.6 (12 kPa)
         data["contacts"] = {"table": {"group": "tip", "obstacle": "plane", "point": [0.0, 0.0, -0.012],
                                       "normal": [0.0, 0.0, 1.0]}}
         data["probes"].append("contact_force:table")
@@ -57,10 +58,13 @@ def taylor_rates(design, load, probes):
                                                  ("finger_cable", "tendon", False)])
 def test_load_factor_gradients_are_exact(name, load, contact):
     # a gradient error δ would leave a remainder ~ h δ (rate 1); exact gradients give rate 2
-    design = SceneDesign(parse_scene(finger(name, contact, factor=0.5)))
+    # from a factor where the tip presses on the table (the steps only press it harder): a smooth contact force
+    design = SceneDesign(parse_scene(finger(name, contact, factor=CONTACT if contact else 0.5)))
     probes = ["displacement:tip[2]", "displacement:tip[0]"] + (["contact_force:table[2]"] if contact else [])
     for p in probes:
         design.add_probe(p)
+    if contact:
+        assert design.solve()["contact_force:table[2]"] > 1e-3, "the tip must press on the table at the base factor"
     rates = taylor_rates(design, load, probes)
     for p, r in rates.items():
         assert r[-1] > 1.9 and r.min() > 1.5, (p, r)

@@ -48,11 +48,13 @@ def test_slsqp_raises_the_twist_to_a_kkt_point():
                            method="SLSQP", maxiter=15, scales=SCALES)
     assert slsqp.objective > slsqp.initial_objective + 3.0
     assert abs(slsqp.change) <= 1e-3 * (1 + 1e-9) and abs(slsqp.change) > 0.99e-3  # the bound is active
-    assert slsqp.parameters["density:arms"] == pytest.approx(0.22, abs=1e-6)  # at its lower bound
-    # KKT at the result (fresh adjoint gradients, scaled parameters): the twist's gradient over the free parameters
-    # is a multiple μ of the height's (the active bound); a twist raised further would carry the height beyond the
-    # bound (the multiplier's sign); and the Lagrangian's gradient pushes density:arms against its lower bound
-    free = ["orientation.offset_deg", "density:centre"]
+    # KKT at the result (fresh adjoint gradients, scaled parameters): the twist's gradient over the parameters off
+    # their box bounds is a multiple μ of the height's (the active bound); a twist raised further would carry the
+    # height beyond the bound (the multiplier's sign); and at a box bound the Lagrangian's gradient pushes outwards
+    at = {p: ("lo" if v <= BOUNDS[p][0] + 1e-6 else "hi" if v >= BOUNDS[p][1] - 1e-6 else None)
+          for p, v in slsqp.parameters.items()}
+    free = [p for p in BOUNDS if at[p] is None]
+    assert free, at
     g = design.gradient(["center_rotation", "center_height"], list(BOUNDS))
     grad_f = {p: -g["center_rotation"][p] * SCALES[p] for p in BOUNDS}
     grad_h = {p: g["center_height"][p] * SCALES[p] for p in BOUNDS}
@@ -61,7 +63,24 @@ def test_slsqp_raises_the_twist_to_a_kkt_point():
     residual = np.linalg.norm(b - mu * a) / np.linalg.norm(b)
     assert residual < 1e-3, (residual, grad_f, grad_h)
     assert mu * np.sign(slsqp.change) > 0
-    assert grad_f["density:arms"] - mu * grad_h["density:arms"] < 0
+    for p in BOUNDS:
+        if at[p] is not None:
+            assert (grad_f[p] - mu * grad_h[p]) * (1 if at[p] == "hi" else -1) > 0, (p, at[p], grad_f, grad_h)
+
+
+def test_slsqp_stopped_beyond_the_active_bound_ends_on_it():
+    # six SLSQP iterations end just beyond the active height bound (its iterates approach it from outside), better
+    # than any feasible evaluation: the result is that design brought onto the bound by Newton steps, not the initial
+    slsqp = optimize_probe(case_a(), "center_rotation", list(BOUNDS), BOUNDS, maximize=False, bound=1e-3,
+                           method="SLSQP", maxiter=6, scales=SCALES)
+    last = slsqp.history.iterates[-1]
+    assert abs(last["change"]) > 1e-3 * (1 + 1e-9)  # the situation tested: the search stopped outside
+    searched = [e for e in slsqp.history.evaluations if e["solves"] <= last["solves"]]
+    assert all(not e["feasible"] or e["objective"] < last["objective"] for e in searched)
+    assert 1e-3 * (1 - 1e-9) <= abs(slsqp.change) <= 1e-3 * (1 + 1e-9)  # on the bound, within it
+    # a Newton step from an excess δ costs about the twist's slope along the height's gradient times δ: tiny here
+    assert slsqp.objective == pytest.approx(last["objective"], rel=1e-4)
+    assert slsqp.objective > max(e["objective"] for e in searched if e["feasible"]) + 3.0
 
 
 @pytest.mark.slow
