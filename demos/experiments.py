@@ -67,7 +67,7 @@
 # `--ci`: coarse meshes (beams 688, Tripods 2202 tetrahedra) and the seed scatter for the calibrated beams only.
 #
 # Run: `python demos/experiments.py --out out/experiments [--ci]`; under `mpirun -n 2` every run is shared by
-# the two ranks (≈ 6 min serial at full size on a shared 2-core machine, plus a calibration per extra table).
+# the two ranks (≈ 3 min serial at full size on a shared 2-core machine, plus a calibration per extra table).
 
 # %%
 from __future__ import annotations
@@ -112,7 +112,7 @@ DATASHEET_E = 12e6
 LENGTH_TARGET, ANGLE_TARGET_DEG = 0.15, 5.0
 #: --ci mesh sizes (m).
 CI_H = {"beam": 0.0075, "tripod": 0.006}
-#: |ours / real − 1| of the calibrated γ = 0.1 beams (wall table; full size, --ci): 1.5–10.5 % and 4.8–15.5 %.
+#: |ours / real − 1| of the calibrated γ = 0.1 beams (the paper's foam; full size, --ci): 13.3–14.0 % and 2.9–8.2 %.
 TI_BEAM_BAND = {False: 0.15, True: 0.30}
 #: |calibrated / datasheet − 1| of the Tripod's changes from rest (heights, twists at top): measured ≤ 0.6 %.
 TRIPOD_E_RTOL = 0.02
