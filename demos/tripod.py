@@ -56,14 +56,14 @@
 # robot, within the bands of `_demo` (a rise within `TABLE_I_RISE_RTOL` = 15 %, a twist within
 # `TABLE_I_TWIST_ATOL_DEG` = 5°: the targets of docs/paper-validation.md, not fitted to these runs):
 # - **met, and asserted**: case B's middle rise (0.996 × the real robot's; `--ci` 0.974) and top twist (0.52°
-#   below it; `--ci` 0.10° above). Both also hold at P2 on the 10 mm mesh (10.92 mm, 21.46°;
-#   docs/validation/2026-11-27-tripod-as-built.md), so neither is an artefact of P1's stiffness.
+#   below it; `--ci` 0.10° above). Both also hold at P2 on the 10 mm mesh (10.92 mm, 21.46°), so neither is an
+#   artefact of P1's stiffness (docs/validation/2026-11-27-tripod-demos.md).
 # - **missed, not asserted**: case B's top rise (+33 %), its middle twist (10.67° against 5.53°: 1.9 ×, 5.1° above);
 #   case A's top rise (+26 %) and its top twist (4.81° against 20.49°, a quarter of it).
 # - **met only at P1, not asserted**: case A's middle rise (−12 % here, −22 % at P2 on 8 mm) and middle twist
 #   (1.7° below the real 3.96°: a 5° band around so small an angle says little).
 # Why case A twists so little and what the P1 mesh hides (P1 against P2, the clamp, the layout readings of case A):
-# the validation page above.
+# docs/validation/2026-11-27-tripod-as-built.md.
 #
 # Run: `python demos/tripod.py --out out/tripod [--ci]`, also under `mpirun -n 2` (full size ≈ 30 s wall, `--ci`
 # ≈ 12 s on the shared 2-core machine).
