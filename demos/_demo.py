@@ -27,8 +27,8 @@ from foambase.logs import setup_logging
 SCENES = Path(__file__).resolve().parent / "scenes"
 #: Fig. 6 of the paper: scene → (real, simulated) tip deflection in mm (the caption's blue, green, red beams).
 FIG6_MM = {"beam_iso": (-48.0, -47.2), "beam_ti_y": (-23.0, -19.1), "beam_ti_z": (-24.0, -22.2)}
-#: Ours / the real robot's change from rest (heights of cases A and B, |twist| of case B) lies in this band, for the
-#: flat-plate Tripods of ``experiments.py``: measured 0.83–1.22 at the scenes' mesh and at the --ci mesh.
+#: Ours / the real robot's change from rest (heights of cases A and B, |twist| of case B) lies in this band:
+#: measured 0.83–1.22 at the scenes' mesh and at the --ci mesh.
 TABLE_I_RATIO_BAND = (0.7, 1.3)
 #: The Tripod as built against the real robot (``tripod.py``, ``pipeline.py``): a change of the centre's height
 #: agrees when within this fraction of the real robot's, a change of its twist when within
