@@ -225,3 +225,15 @@ def test_a_layered_as_built_case_b_reaches_rest():
         parallel = run_scene(parse_scene(data), comm=MPI.COMM_WORLD)
         for name, value in rest.probes.items():
             assert parallel.steps[0].probes[name] == pytest.approx(value, rel=1e-7, abs=1e-10), name
+
+
+@pytest.mark.parametrize(("key", "value", "match"), [
+    ("layers", -1, r"geometry\.layers: -1 is out of range; valid: an integer >= 0"),
+    ("layers", 2.0, r"geometry\.layers: expected an integer, got"),
+    ("arm_end_cut", "round", r"geometry\.arm_end_cut: 'round' is not valid; valid: 'arc', 'straight'"),
+])
+def test_bad_layer_and_cut_keys_are_refused_before_any_work(key, value, match):
+    data = scene("tripod_case_b")
+    data["geometry"][key] = value
+    with pytest.raises(SceneError, match=match):
+        parse_scene(data)
