@@ -143,9 +143,9 @@ def _sizes(names) -> dict[str, int]:
 
 def _default_samples(scene) -> Path:
     """The samples CSV of the one shipped table every foam region of ``scene`` uses."""
-    from homogenization.tables import table_paths
+    from homogenization.tables import DEFAULT_TABLE, table_paths
 
-    names = {r.parameters.get("table", "cube") for r in tabulated_regions(scene.regions)}
+    names = {r.parameters.get("table", DEFAULT_TABLE) for r in tabulated_regions(scene.regions)}
     if len(names) != 1 or next(iter(names)).endswith(".csv"):
         raise UncertaintyError(f"the scene's foam regions use the tables {sorted(names)}: pass the samples CSV their "
                          "mean table was aggregated from (samples_csv, --samples)")

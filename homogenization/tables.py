@@ -23,10 +23,10 @@ time and the software version. :func:`aggregate` reduces the samples to the mean
 deviation over seeds per (density, γ); ``fenicsfoam.materials.foam_material`` interpolates that table.
 
 Every sweep setting of box and foam writes a table of its own name (:attr:`SweepSettings.name`,
-:func:`table_paths`): ``cube`` (the Euclidean strut foam in the unit cube, ``foam_table.csv``, the default),
-``equiaxed`` (the same foam in the box ``(γ, 1, 1)``, ``foam_table_equiaxed.csv``), ``equiaxed_polyhedral`` (the
-polyhedral wall foam), each with its samples and provenance. :func:`shipped_tables` lists those in
-:data:`DATA_DIR`.
+:func:`table_paths`), each with its samples and provenance; :func:`shipped_tables` lists those in :data:`DATA_DIR`
+and :data:`TABLE_NOTES` says what each one is. The default, :data:`DEFAULT_TABLE`, is the paper's foam: the
+polyhedral wall foam with pores of 0.0045 E_s, the midpoint of the rotated … hex8 bracket, over the whole density ×
+γ grid (``foam_table_equiaxed_polyhedral_bracket_pores0p0045.csv``, docs/foam.md).
 
 The sweep (:func:`run_sweep`) caches every finished sample as one JSON file named after its inputs and a hash of
 their exact values (written to a temporary file and renamed, so a file present is complete): an interrupted sweep
@@ -90,6 +90,16 @@ BRACKETED = ("E1", "E2", "E3", "G23", "G13", "G12", "ti_E_t", "ti_E_l", "ti_G_l"
 DATA_DIR = Path(__file__).parent / "data"
 SAMPLES_CSV = DATA_DIR / "foam_table_samples.csv"
 TABLE_CSV = DATA_DIR / "foam_table.csv"
+#: The foam table a foam region, ``foam_material`` and the graded fields read when none is named: the paper's foam.
+DEFAULT_TABLE = "equiaxed_polyhedral_bracket_pores0p0045"
+#: One line per shipped table: what it is (docs/foam.md has the evidence behind each).
+TABLE_NOTES = {
+    DEFAULT_TABLE: "the paper's foam (default): polyhedral wall foam, pores of 0.0045 E_s, rotated … hex8 midpoint, "
+                   "density 0.09–0.35 × γ 0.1–1, 3 seeds",
+    "cube": "Euclidean strut foam, 8 cells in the unit cube (period-dominated at γ < 1; the former default)",
+    "equiaxed": "Euclidean strut foam, 27 cells in the box (γ, 1, 1), where it was computed",
+    "equiaxed_polyhedral": "polyhedral wall foam with void pores, 18 % only (the Fig. 6 beams' density)",
+}
 #: Foams with a table: the Euclidean strut foam and the polyhedral (gauge) wall foam.
 FOAMS = ("euclidean", "polyhedral")
 
@@ -427,12 +437,12 @@ def shipped_tables() -> tuple[str, ...]:
 def resolve_table(table: str | os.PathLike | None = None) -> tuple[str, Path]:
     """A foam table as ``foam_material(table=)`` and a scene's ``table`` key take it: its label and its file.
 
-    ``None`` is the default, ``"cube"``; a string not ending in ``.csv`` names a shipped table
+    ``None`` is the default, :data:`DEFAULT_TABLE`; a string not ending in ``.csv`` names a shipped table
     (:func:`shipped_tables`, its aggregated file :func:`table_paths`); anything else is the path of an aggregated
     table CSV, labelled by the path as given. Raises :class:`~foambase.errors.InputError` for an unknown name.
     """
     if table is None:
-        table = "cube"
+        table = DEFAULT_TABLE
     if isinstance(table, str) and not table.endswith(".csv"):
         if table not in shipped_tables():
             raise InputError(f"table = {table!r} is not a shipped foam table {shipped_tables()} nor a .csv path")
@@ -730,16 +740,58 @@ def settings_dict(settings: SweepSettings) -> dict:
     return asdict(settings) | {"nu_solid": NU_SOLID, "scheme": SCHEME}
 
 
-def recorded_settings(name: str, directory: str | os.PathLike = DATA_DIR) -> dict[float, SweepSettings]:
-    """The sweep settings per γ with which the table ``name`` in ``directory`` was made, read from its provenance.
+def _node_key(density: float, gamma: float) -> str:
+    """The key of one (density, γ) node in a provenance's ``settings_per_node``."""
+    return f"density={density:g},gamma={gamma:g}"
 
-    Regenerating a table (a shipped one by default) with these settings recomputes its own samples, whatever
-    today's defaults: a provenance that records no discretization (tables made before the choice existed) means
-    ``"rotated"``. The provenance's ``settings_per_gamma`` (or its one ``settings`` for every γ) must agree with
-    the inputs recorded in every sample row (:func:`settings_from_row`); ``maxiter``, which rows do not record,
-    comes from the provenance. Raises :class:`~foambase.errors.InputError` naming the table for a provenance that
-    is missing, unreadable, has no settings for a γ of its samples (a merged table has one per source) or
-    disagrees with its rows.
+
+def _recorded(provenance, density: float, gamma: float) -> dict | None:
+    """The settings a provenance records for the node (density, γ), or ``None``.
+
+    A sweep's provenance holds ``settings_per_node``, ``settings_per_gamma`` or one ``settings``; a merged table's
+    (:func:`merge_tables`) lists its sources' under ``merged_from`` (the first that has the node); a bracket
+    table's (:func:`bracket_tables`) holds its rotated and hex8 sources' under ``bracketed_from``: the node's
+    settings are the rotated source's with ``discretization = "bracket"`` (they must be the hex8 source's but for
+    the discretization).
+    """
+    if not isinstance(provenance, dict):
+        return None
+    for key, value in (("settings_per_node", _node_key(density, gamma)), ("settings_per_gamma", str(float(gamma)))):
+        recorded = (provenance.get(key) or {}).get(value)
+        if isinstance(recorded, dict):
+            return recorded
+    if isinstance(provenance.get("settings"), dict):
+        return provenance["settings"]
+    for source in provenance.get("merged_from") or ():
+        recorded = _recorded(source.get("provenance") if isinstance(source, dict) else None, density, gamma)
+        if recorded is not None:
+            return recorded
+    pair = provenance.get("bracketed_from")
+    if isinstance(pair, dict):
+        low, high = (_recorded((pair.get(k) or {}).get("provenance"), density, gamma) for k in ("rotated", "hex8"))
+        if low is None or high is None:
+            return None
+        if {k: v for k, v in low.items() if k != "discretization"} != {
+                k: v for k, v in high.items() if k != "discretization"}:
+            raise InputError(f"bracket provenance, node {_node_key(density, gamma)}: its rotated and hex8 sources "
+                             f"record other settings ({low} and {high})")
+        return low | {"discretization": "bracket"}
+    return None
+
+
+def recorded_settings(name: str, directory: str | os.PathLike = DATA_DIR, *,
+                      nodes: bool = False) -> dict[float, SweepSettings] | dict[tuple[float, float], SweepSettings]:
+    """The sweep settings with which the table ``name`` in ``directory`` was made, read from its provenance.
+
+    Per γ (``{gamma: settings}``), or with ``nodes=True`` per node (``{(density, gamma): settings}``): a table
+    whose grid is scaled with density (``studies/wall_foam.py table --reference-density``) has one setting per
+    node, and asking it per γ is refused. Regenerating a table (a shipped one by default) with these settings
+    recomputes its own samples, whatever today's defaults: a provenance that records no discretization (tables made
+    before the choice existed) means ``"rotated"``. The provenance's settings (:func:`_recorded`: per node, per γ or
+    one for all; through merged and bracket provenances) must agree with the inputs recorded in every sample row
+    (:func:`settings_from_row`); ``maxiter``, which rows do not record, comes from the provenance. Raises
+    :class:`~foambase.errors.InputError` naming the table for a provenance that is missing, unreadable, has no
+    settings for a node of its samples or disagrees with its rows.
     """
     paths = table_paths(name, directory)
     try:
@@ -752,15 +804,14 @@ def recorded_settings(name: str, directory: str | os.PathLike = DATA_DIR) -> dic
                     for row in csv.DictReader(f)]
     except OSError as exc:
         raise InputError(f"foam table {name!r}: samples {str(paths['samples'])!r} unreadable ({exc})") from exc
-    per_gamma = provenance.get("settings_per_gamma") if isinstance(provenance, dict) else None
-    common = provenance.get("settings") if isinstance(provenance, dict) else None
     fields = SweepSettings.__dataclass_fields__
-    out: dict[float, SweepSettings] = {}
+    per_node: dict[tuple[float, float], SweepSettings] = {}
     for row in rows:
-        gamma = float(row["gamma"])
-        recorded = (per_gamma or {}).get(str(gamma), common)
+        density, gamma = float(row["density"]), float(row["gamma"])
+        recorded = _recorded(provenance, density, gamma)
         if not isinstance(recorded, dict):
-            raise InputError(f"foam table {name!r}: its provenance records no settings for gamma {gamma:g}")
+            raise InputError(f"foam table {name!r}: its provenance records no settings for density {density:g}, "
+                             f"gamma {gamma:g}")
         from_row = settings_from_row(row)
         kwargs = {k: v for k, v in recorded.items() if k in fields} | {"discretization": recorded.get(
             "discretization", "rotated")}
@@ -775,8 +826,16 @@ def recorded_settings(name: str, directory: str | os.PathLike = DATA_DIR) -> dic
                 Sample(row["density"], gamma, row["seed"]), from_row):
             raise InputError(f"foam table {name!r}, gamma {gamma:g}: the provenance's settings {settings} are not "
                              f"those of its sample rows {from_row}")
-        out.setdefault(gamma, settings)
-    return dict(sorted(out.items()))
+        per_node.setdefault((density, gamma), settings)
+    if nodes:
+        return dict(sorted(per_node.items()))
+    out: dict[float, SweepSettings] = {}
+    for (_, gamma), settings in sorted(per_node.items()):
+        if out.setdefault(gamma, settings) != settings:
+            raise InputError(f"foam table {name!r}: its settings vary with density at gamma {gamma:g} "
+                             f"({out[gamma].resolution} and {settings.resolution}): ask them per node "
+                             "(recorded_settings(..., nodes=True))")
+    return out
 
 
 def _parse_cell(text: str):

@@ -26,7 +26,7 @@ from fenicsfoam.calibrate import (
     scene_with_E_solid,
 )
 from fenicsfoam.scene import SceneError, parse_scene, run_scene
-from homogenization.tables import table_paths
+from homogenization.tables import DEFAULT_TABLE, table_paths
 
 SCENES = Path(__file__).resolve().parents[1] / "demos" / "scenes"
 COARSE_BEAM_H = 0.0075   # 688 tets
@@ -34,8 +34,8 @@ E_TRUE = 7.3e6           # the modulus the synthetic targets are made with (the 
 
 
 def iso_beam_text() -> str:
-    """The shipped isotropic beam's scene text on the default table (`cube`): these tests calibrate on synthetic
-    targets, whatever the table, and their records name `cube`."""
+    """The shipped isotropic beam's scene text on the default table (no `table` key): these tests calibrate on
+    synthetic targets, whatever the table, and their records name the default table."""
     text = (SCENES / "beam_iso.toml").read_text()
     return "\n".join(line for line in text.splitlines() if not line.startswith("table = ")) + "\n"
 
@@ -69,9 +69,9 @@ def test_recovers_a_known_E_solid_on_the_beam(model, tmp_path):
     assert {"E_solid", "probe", "target", "achieved", "runs"} <= set(written)
     assert written["E_solid"] == cal.E_solid and written["runs"] == cal.runs
     assert read_calibration(tmp_path / "calibration.json") == cal.E_solid
-    cube = {"table": "cube", "sha256": hashlib.sha256(table_paths("cube")["table"].read_bytes()).hexdigest(),
-            "regions": ["beam"]}
-    assert written["foam_tables"] == [cube] and calibration_tables(tmp_path / "calibration.json") == [cube]
+    default = {"table": DEFAULT_TABLE, "regions": ["beam"],
+               "sha256": hashlib.sha256(table_paths(DEFAULT_TABLE)["table"].read_bytes()).hexdigest()}
+    assert written["foam_tables"] == [default] and calibration_tables(tmp_path / "calibration.json") == [default]
 
 
 def test_recovers_a_known_E_solid_from_a_component_of_a_group_probe():
@@ -189,7 +189,7 @@ def test_a_scene_takes_E_solid_from_a_calibration_file(tmp_path):
     from fenicsfoam.scene import SceneError, load_scene
 
     (tmp_path / "cal").mkdir()
-    (tmp_path / "cal" / "calibration.json").write_text(json.dumps({"E_solid": E_TRUE, "probe": "tip_deflection"}))
+    calibration_through(tmp_path / "cal", DEFAULT_TABLE)  # the beam's table
     text = iso_beam_text().replace("h = 0.0024", f"h = {COARSE_BEAM_H}")
     calibrated = text.replace("E_solid = 12e6", 'E_solid = {calibration = "cal/calibration.json"}')
     assert calibrated != text
@@ -229,8 +229,8 @@ def beam_taking(path, table=None):
 
 
 @pytest.mark.parametrize("recorded, read", [
-    (["cube"], None), (["equiaxed"], "equiaxed"), (["cube", "equiaxed"], "copy-of-cube"),
-    (["cube"], "equiaxed"), (["equiaxed"], None), (["equiaxed"], "cube")])
+    ([DEFAULT_TABLE], None), (["equiaxed"], "equiaxed"), (["cube", "equiaxed"], "copy-of-cube"),
+    (["cube"], "equiaxed"), (["equiaxed"], None), (["equiaxed"], "cube"), (["cube"], None)])
 def test_a_region_reading_its_calibration_table_takes_it(tmp_path, recorded, read):
     """The region's table among the recorded ones: the modulus is taken (tables are compared by content: a CSV
     copy of a recorded table is that table); another table: refused, naming the region and both tables."""
@@ -239,27 +239,29 @@ def test_a_region_reading_its_calibration_table_takes_it(tmp_path, recorded, rea
     read = copy if read == "copy-of-cube" else read
     path = calibration_through(tmp_path, *recorded)
     scene = beam_taking(path, read)
-    if (read or "cube") in recorded or read == copy:
+    if (read or DEFAULT_TABLE) in recorded or read == copy:
         assert parse_scene(scene).regions[0].parameters["E_solid"] == E_TRUE
         return
     theirs = recorded[0]
-    mine = read or "cube"
+    mine = read or DEFAULT_TABLE
     with pytest.raises(SceneError, match=rf"regions\.beam\.E_solid\.calibration: region 'beam' reads foam table "
                                          rf"'{mine}', but calibration file .* was calibrated through foam table "
                                          rf"'{theirs}': .*Calibrate through '{mine}'"):
         parse_scene(scene)
 
 
-def test_a_calibration_file_without_its_tables_is_the_default_tables(tmp_path):
-    """An older file without `foam_tables`: calibrated through `cube`, so an `equiaxed` region refuses it."""
+def test_a_calibration_file_without_its_tables_is_the_former_default_table(tmp_path):
+    """An older file without `foam_tables`: calibrated through `cube`, the default table when it was written, so a
+    `cube` region takes it and a region on today's default table or on `equiaxed` refuses it."""
     path = tmp_path / "calibration.json"
     path.write_text(json.dumps({"E_solid": E_TRUE, "probe": "tip_deflection"}))
     assert [r["table"] for r in calibration_tables(path)] == ["cube"]
-    assert parse_scene(beam_taking(path)).regions[0].parameters["E_solid"] == E_TRUE
-    with pytest.raises(SceneError, match=r"reads foam table 'equiaxed', but .* through foam table 'cube' \(a "
-                                         r"calibration file without a 'foam_tables' record is taken as calibrated "
-                                         r"through the default table 'cube'\)"):
-        parse_scene(beam_taking(path, "equiaxed"))
+    assert parse_scene(beam_taking(path, "cube")).regions[0].parameters["E_solid"] == E_TRUE
+    for table, mine in ((None, DEFAULT_TABLE), ("equiaxed", "equiaxed")):
+        with pytest.raises(SceneError, match=rf"reads foam table '{mine}', but .* through foam table 'cube' \(a "
+                                             r"calibration file without a 'foam_tables' record is taken as "
+                                             r"calibrated through the former default table 'cube'\)"):
+            parse_scene(beam_taking(path, table))
 
 
 def test_a_table_regenerated_since_the_calibration_is_refused(tmp_path):
@@ -307,10 +309,10 @@ def test_two_tables_two_calibrations_each_scene_takes_its_own(tmp_path, monkeypa
 
     load = experiments.load_scene_dict
 
-    def beams_equiaxed(name, **kwargs):  # the beams on another table than the Tripods, as the experiments will
+    def beams_equiaxed(name, **kwargs):  # the beams on another table than the Tripods
         data = load(name, **kwargs)
-        if name.startswith("beam"):
-            data["regions"]["beam"]["table"] = "equiaxed"
+        for region in experiments.foam_regions(data):
+            region["table"] = "equiaxed" if name.startswith("beam") else "cube"
         return data
 
     monkeypatch.setattr(experiments, "load_scene_dict", beams_equiaxed)
@@ -357,7 +359,7 @@ def test_cli_recovers_a_known_E_solid_and_writes_calibration_json(tmp_path, caps
     assert written["achieved"] == pytest.approx(target, rel=1e-6) and written["target"] == target
     assert written["probe"] == "tip_deflection" and written["runs"] == 3 and written["E_solid_initial"] == 12e6
     printed = capsys.readouterr().out
-    assert "E_solid = " in printed and "through foam table 'cube'" in printed
+    assert "E_solid = " in printed and f"through foam table '{DEFAULT_TABLE}'" in printed
 
 
 @pytest.mark.parametrize("argv, message", [

@@ -389,6 +389,6 @@ def test_foam_regions_call_foam_material_with_the_scene_values(monkeypatch):
     scene = tomllib.loads((SCENES / "beam_iso.toml").read_text())
     scene["geometry"]["h"] = COARSE_BEAM_H
     result = run_scene(scene, comm=MPI.COMM_SELF)
-    assert calls == [(0.18, 1.0, 12e6, 0.3, 1190.0, "isotropic", "equiaxed_polyhedral")]
+    assert calls == [(0.18, 1.0, 12e6, 0.3, 1190.0, "isotropic", None)]  # no table key: the default
     assert result.materials["beam"] == {"type": "Isotropic", "E": 12e6 * 0.18**2, "nu": 0.3,
                                         "rho": pytest.approx(1190.0 * 0.18)}

@@ -103,7 +103,7 @@ def test_paper_fit_of_the_shipped_table_averages_its_engineering_columns(table):
     """At the table's nodes (γ < 1) the "paper" fit is the documented average of the engineering columns."""
     for i in np.flatnonzero(table["gamma"] < 1):
         d, g = table["density"][i], table["gamma"][i]
-        m = foam_material(d, g, E_TPU, 0.3, fit="paper")
+        m = foam_material(d, g, E_TPU, 0.3, fit="paper", table="cube")
         col = {k: table[k][i] for k in tables.ENGINEERING}
         np.testing.assert_allclose(
             [m.E_l, m.E_t, m.nu_t, m.nu_tl, m.G_l],
@@ -200,7 +200,8 @@ def test_gamma_one_is_nearly_isotropic_and_gamma_point_one_strongly_anisotropic(
 
 
 @pytest.mark.parametrize(("kwargs", "match"), [
-    ({"density": 0.05}, r"density = 0.05 is outside the tabulated range \[0.09, 0.34\]"),
+    ({"density": 0.05}, r"density = 0.05 is outside the tabulated range \[0.09, 0.35\] of the foam table "
+                        r"'equiaxed_polyhedral_bracket"),
     ({"density": 0.5}, r"density = 0.5 is outside"),
     ({"gamma": 0.05}, r"gamma = 0.05 is outside the tabulated range \[0.1, 1\]"),
     ({"nu_solid": 0.45}, r"nu_solid = 0.45: the foam table was computed for a solid with nu = 0.3"),
@@ -289,7 +290,7 @@ def test_a_table_of_one_density_is_exact_at_its_nodes_and_named_tables_resolve(t
                                rtol=1e-12)
     with pytest.raises(ValueError, match=r"density = 0.2 is outside the tabulated range \[0.18, 0.18\] .*t\.csv"):
         foam_material(0.2, 0.1, E_TPU, 0.3, table=path)
-    assert foam_material(0.18, 0.1, E_TPU, 0.3, table="cube") == foam_material(0.18, 0.1, E_TPU, 0.3)
+    assert foam_material(0.18, 0.1, E_TPU, 0.3, table=tables.DEFAULT_TABLE) == foam_material(0.18, 0.1, E_TPU, 0.3)
     assert "cube" in tables.shipped_tables()
     with pytest.raises(ValueError, match=r"table = 'no_such' is not a shipped foam table"):
         foam_material(0.18, 0.1, E_TPU, 0.3, table="no_such")
@@ -418,20 +419,29 @@ def test_csv_round_trips_text_with_commas_and_floats_exactly(tmp_path):
 # --------------------------------------------------------------------------------------------------
 # The default discretization and the shipped tables' recorded one
 # --------------------------------------------------------------------------------------------------
-def test_shipped_tables_record_the_rotated_scheme_and_regenerate_with_it():
-    """Every shipped table was made with the rotated scheme: its provenance says so (or, made before the choice,
-    says nothing, which means rotated), it agrees with every sample row, and the settings read back name the
-    shipped table itself, not a table of today's default (hex8)."""
+def test_shipped_tables_record_their_scheme_and_regenerate_with_it():
+    """Every shipped table records the scheme it was made with: the older ones rotated (their provenance says so
+    or, made before the choice, says nothing, which means rotated), the default table the rotated … hex8
+    bracket; the settings agree with every sample row, and the settings read back name the shipped table itself,
+    not a table of today's default (hex8)."""
     assert tables.DEFAULT_DISCRETIZATION == "hex8"
     for name in tables.shipped_tables():
-        recorded = tables.recorded_settings(name)
+        recorded = tables.recorded_settings(name, nodes=True)
         samples = tables.read_csv(tables.table_paths(name)["samples"])
-        assert sorted(recorded) == sorted(set(samples["gamma"].tolist())), name
+        assert sorted(recorded) == sorted(set(zip(samples["density"].tolist(), samples["gamma"].tolist(),
+                                                  strict=True))), name
+        scheme = "bracket" if name == tables.DEFAULT_TABLE else "rotated"
         for settings in recorded.values():
-            assert settings.discretization == "rotated" and settings.name == name, (name, settings)
+            assert settings.discretization == scheme and settings.name == name, (name, settings)
     polyhedral = tables.recorded_settings("equiaxed_polyhedral")
     assert polyhedral[0.1].resolution == (60, 300, 300) and not polyhedral[0.1].cubic
     assert polyhedral[0.1].maxiter == 20000 and polyhedral[1.0].resolution == 96
+    # the paper's foam: grids scaled with density from the reference grid at 18 % (constant voxels across a wall)
+    paper = tables.recorded_settings(tables.DEFAULT_TABLE, nodes=True)
+    assert paper[(0.18, 0.1)].resolution == (60, 100, 100) and paper[(0.09, 0.1)].resolution == (120, 100, 100)
+    assert {s.pore_modulus for s in paper.values()} == {0.0045}
+    with pytest.raises(ValueError, match=r"settings vary with density at gamma 0.1 .*nodes=True"):
+        tables.recorded_settings(tables.DEFAULT_TABLE)
 
 
 def test_recorded_settings_refuse_a_provenance_that_is_not_the_rows(tmp_path):
@@ -451,7 +461,8 @@ def test_recorded_settings_refuse_a_provenance_that_is_not_the_rows(tmp_path):
         tables.recorded_settings("equiaxed", tmp_path)
     del provenance["settings_per_gamma"]
     dst["provenance"].write_text(json.dumps(provenance))
-    with pytest.raises(ValueError, match=r"foam table 'equiaxed': its provenance records no settings for gamma"):
+    with pytest.raises(ValueError, match=r"foam table 'equiaxed': its provenance records no settings for density "
+                                         r"0.18, gamma 0.1"):
         tables.recorded_settings("equiaxed", tmp_path)
     dst["provenance"].unlink()
     with pytest.raises(ValueError, match=r"foam table 'equiaxed': provenance .* unreadable"):

@@ -24,7 +24,7 @@ DEVIATION = {0: -0.1, 1: 0.02, 2: 0.08}
 
 def beam(model="linear", half_step=False):
     scene = tomllib.loads((SCENES / "beam_iso.toml").read_text())
-    scene["regions"]["beam"].pop("table")  # the default table, whose samples the synthetic tables move
+    scene["regions"]["beam"]["table"] = "cube"  # the table whose samples the synthetic tables move
     scene["geometry"]["h"] = COARSE_BEAM_H
     scene["fem"]["model"] = model
     scene["outputs"] = {"xdmf": False, "png": False}
@@ -187,8 +187,9 @@ def beam_file(directory):
     """The coarse linear beam, loaded at half and full gravity, as a scene file."""
     text = (SCENES / "beam_iso.toml").read_text()
     edited = text.replace("h = 0.0024", f"h = {COARSE_BEAM_H}").replace('model = "corotational"', 'model = "linear"')
-    # the default table, whose samples the synthetic tables move
-    edited = "\n".join(line for line in edited.splitlines() if not line.startswith("table = ")) + "\n"
+    # the table whose samples the synthetic tables move
+    edited = edited.replace('fit = "isotropic"', 'fit = "isotropic"\ntable = "cube"')
+    assert edited.count('table = "cube"') == 1
     edited = edited.replace('[[steps]]\nlabel = "gravity"', '[[steps]]\nlabel = "half"\ngravity = 0.5\n\n'
                             '[[steps]]\nlabel = "gravity"')
     assert edited.count('label = "half"') == 1 and 'model = "linear"' in edited

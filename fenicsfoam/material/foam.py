@@ -56,10 +56,10 @@ def foam_material(density: float, gamma: float, E_solid: float, nu_solid: float,
         ``TransverseIsotropic(E_t = mean(E2, E3), E_l = E1, nu_t = mean(ν23, ν32), nu_tl = mean(ν21, ν31),
         G_l = mean(G12, G13))``.
     table
-        The name of a shipped table (``homogenization.tables.shipped_tables()``: ``"cube"``, the default, the
-        Euclidean strut foam with 8 cells in the unit cube; ``"equiaxed"``, the same foam with 27 cells in the
-        box ``(γ, 1, 1)``, tabulated only where it was computed) or the path of an aggregated table CSV (a
-        ``Path``, or a string ending in ``.csv``).
+        ``None`` (the default): ``homogenization.tables.DEFAULT_TABLE``, the paper's foam over density
+        0.09–0.35 × γ 0.1–1. Else the name of a shipped table (``homogenization.tables.shipped_tables()``, each
+        described in ``TABLE_NOTES``: e.g. ``"cube"``, the former default, the Euclidean strut foam with 8 cells in
+        the unit cube) or the path of an aggregated table CSV (a ``Path``, or a string ending in ``.csv``).
 
     """
     from homogenization.tables import NU_SOLID, resolve_table

@@ -116,9 +116,9 @@ class FoamTable:
     """
 
     def __init__(self, path: str | Path | None = None):
-        from homogenization.tables import TABLE_CSV, read_csv
+        from homogenization.tables import read_csv, resolve_table
 
-        self.path = str(Path(path) if path is not None else TABLE_CSV)
+        self.path = str(Path(path) if path is not None else resolve_table(None)[1])
         self.data = read_csv(self.path)
         self.gammas = np.unique(self.data["gamma"])
         self.log_gammas = np.log(self.gammas)

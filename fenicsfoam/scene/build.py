@@ -75,12 +75,14 @@ def resolve_material(region: Region):
 
 
 def _check_default_tables(scene: Scene, what: str) -> None:
-    """Per-cell foam constants (:mod:`fenicsfoam.grading`) read the default (cube) foam table only."""
+    """Per-cell foam constants (:mod:`fenicsfoam.grading`) read the default foam table only (``DEFAULT_TABLE``)."""
+    from homogenization.tables import DEFAULT_TABLE
+
     for region in scene.regions:
         table = region.parameters.get("table")
-        if MATERIAL_KINDS[region.material].tabulated and table not in (None, "cube"):
-            raise SceneError(f"regions.{region.name}.table: {what} read the default foam table 'cube' only, got "
-                             f"{table!r}; remove the key or use numbers without blends")
+        if MATERIAL_KINDS[region.material].tabulated and table not in (None, DEFAULT_TABLE):
+            raise SceneError(f"regions.{region.name}.table: {what} read the default foam table {DEFAULT_TABLE!r} "
+                             f"only, got {table!r}; remove the key or use numbers without blends")
 
 
 def _material_record(material) -> dict[str, Any]:

@@ -9,7 +9,7 @@ another modulus through another table), so the file records the tables its scene
 takes the modulus only if its own table is one of them (:func:`check_calibration_table`). Tables are compared by
 their contents: a CSV copy of a recorded table matches, a recorded table regenerated since does not. A file without
 the record (written before it existed) is taken as calibrated through the default table, :data:`LEGACY_TABLE`
-(``"cube"``, the only table the scenes read then), as it is now.
+(``"cube"``, the only table the scenes read then; no longer the default).
 """
 
 from __future__ import annotations
@@ -68,7 +68,7 @@ def read_calibration(path: str | os.PathLike) -> float:
 def foam_table_records(tables: Iterable[tuple[str, str | os.PathLike | None]]) -> list[dict[str, Any]]:
     """The ``foam_tables`` record of a calibration: one entry per distinct table, from ``(region, table)`` pairs.
 
-    ``table`` as a foam region holds it (``None``: the default ``"cube"``; a shipped name; a CSV path). Each entry
+    ``table`` as a foam region holds it (``None``: the default table; a shipped name; a CSV path). Each entry
     is ``{"table": label, "sha256": digest of its file, "regions": [names]}``
     (:func:`homogenization.tables.resolve_table`, :func:`~homogenization.tables.table_sha256`).
     """
@@ -105,7 +105,7 @@ def calibration_tables(path: str | os.PathLike) -> list[dict[str, Any]]:
 def check_calibration_table(path: str | os.PathLike, table: str | os.PathLike | None, region: str) -> None:
     """Refuse a calibration for a foam region whose table is not one the calibration was made through.
 
-    ``table`` is the region's (``None``: the default ``"cube"``); tables are compared by the SHA-256 of their
+    ``table`` is the region's (``None``: the default table); tables are compared by the SHA-256 of their
     files. :class:`CalibrationError` names the region, both tables and what to do.
     """
     from homogenization.tables import resolve_table, table_sha256
@@ -116,8 +116,8 @@ def check_calibration_table(path: str | os.PathLike, table: str | os.PathLike | 
     if any(r["sha256"] == digest for r in records):
         return
     through = " and ".join(repr(r["table"]) for r in records)
-    legacy = (f" (a calibration file without a 'foam_tables' record is taken as calibrated through the default "
-              f"table {LEGACY_TABLE!r})" if any(r.get("legacy") for r in records) else "")
+    legacy = (f" (a calibration file without a 'foam_tables' record is taken as calibrated through the former "
+              f"default table {LEGACY_TABLE!r})" if any(r.get("legacy") for r in records) else "")
     changed = [r for r in records if r["table"] == label]
     if changed:
         raise CalibrationError(

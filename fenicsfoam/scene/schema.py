@@ -164,8 +164,8 @@ def _read_fem(scene: _Table) -> tuple[str, int, dict[str, Any]]:
 def _calibrated_E_solid(name: str, region: _Table, base: Path | None, table: str | None) -> float:
     """A foam region's ``E_solid = {calibration = "path"}``: the modulus of a ``calibration.json``.
 
-    The file must have been calibrated through the region's foam ``table`` (``None``: the default ``"cube"``),
-    :func:`fenicsfoam.scene.calibration.check_calibration_table`.
+    The file must have been calibrated through the region's foam ``table`` (``None``: the default table,
+    ``homogenization.tables.DEFAULT_TABLE``), :func:`fenicsfoam.scene.calibration.check_calibration_table`.
     """
     from fenicsfoam.scene.calibration import CalibrationError, check_calibration_table, read_calibration
 
