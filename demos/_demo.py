@@ -30,6 +30,14 @@ FIG6_MM = {"beam_iso": (-48.0, -47.2), "beam_ti_y": (-23.0, -19.1), "beam_ti_z":
 #: Ours / the real robot's change from rest (heights of cases A and B, |twist| of case B) lies in this band:
 #: measured 0.83–1.22 at the scenes' mesh and at the --ci mesh.
 TABLE_I_RATIO_BAND = (0.7, 1.3)
+#: The Tripod as built against the real robot (``tripod.py``, ``pipeline.py``): a change of the centre's height
+#: agrees when within this fraction of the real robot's, a change of its twist when within
+#: :data:`TABLE_I_TWIST_ATOL_DEG`. These are the targets of docs/paper-validation.md (Table I gives one real
+#: measurement per value, with no stated uncertainty), not bands fitted to our runs: the demos assert them only for
+#: the changes that meet them, and name the others as missed.
+TABLE_I_RISE_RTOL = 0.15
+#: See :data:`TABLE_I_RISE_RTOL`: an absolute band, since the real twist at the middle (3.96°, 5.53°) is small.
+TABLE_I_TWIST_ATOL_DEG = 5.0
 
 
 def load_scene_dict(name: str, ci_h: float | None = None, png: bool | Iterable[str] | None = None) -> dict:
@@ -118,3 +126,36 @@ def ratio_check(name: str, ours: float, reference: float, band: tuple[float, flo
         return []
     return [f"{name}: {what} {ours:.4g} is {ratio:.3g} × the reference {reference:.4g}, outside the band "
             f"[{band[0]:g}, {band[1]:g}]"]
+
+
+def table_i_check(name: str, quantity: str, position: str, ours: float, real: float) -> list[str]:
+    """A failed-check message if our change from rest is not within the band of the real robot's (else ``[]``).
+
+    ``quantity`` ``"height"`` (mm): within :data:`TABLE_I_RISE_RTOL` of ``real``; ``"angle"`` (deg): within
+    :data:`TABLE_I_TWIST_ATOL_DEG` of it.
+    """
+    if quantity == "height":
+        if abs(ours - real) <= TABLE_I_RISE_RTOL * abs(real):
+            return []
+        return [f"{name}: rise of the centre at {position} {ours:.4g} mm is {ours / real:.3g} × the real robot's "
+                f"{real:.4g} mm, not within {TABLE_I_RISE_RTOL:.0%}"]
+    if abs(ours - real) <= TABLE_I_TWIST_ATOL_DEG:
+        return []
+    return [f"{name}: twist at {position} {ours:.4g} deg is {ours - real:+.3g} deg from the real robot's {real:.4g} "
+            f"deg, not within {TABLE_I_TWIST_ATOL_DEG:g} deg"]
+
+
+def twists_like_the_robot(name: str, ours: tuple[float, float], real: tuple[float, float],
+                          least_deg: float = 1.0) -> list[str]:
+    """Failed-check messages unless our twist (middle, top; deg from rest) turns the real robot's way.
+
+    That is: the sign of the real robot's change at middle and top, more at the top than at the middle, and by more
+    than ``least_deg`` at the top.
+    """
+    failures = [f"{name}: twist at {position} {o:.4g} deg turns against the real robot's {r:.4g} deg"
+                for position, o, r in zip(("middle", "top"), ours, real, strict=True) if not o * r > 0]
+    if not abs(ours[1]) > abs(ours[0]):
+        failures.append(f"{name}: twist at top {ours[1]:.4g} deg is not larger than at middle {ours[0]:.4g} deg")
+    if not abs(ours[1]) > least_deg:
+        failures.append(f"{name}: twist at top {ours[1]:.4g} deg, expected more than {least_deg:g} deg")
+    return failures

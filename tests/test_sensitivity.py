@@ -118,7 +118,7 @@ def test_taylor_case_b(case_b, parameter, direction):
 
 def test_taylor_beam():
     # Fig. 6 beam with l along y (TI, corotational, gravity, clamp): E_solid, density and the l-axis angle field.
-    design = SceneDesign(scene("beam_ti_y", 0.0075, table="cube"))  # per-cell densities: the full cube table
+    design = SceneDesign(scene("beam_ti_y", 0.0075))  # per-cell densities: the default table, a full grid
     base = design.solve()
     x = design.orientation._midpoints
     for parameter, direction in (("E_solid", 2e6), ("density", 0.03 * np.cos(30 * x[:, 0])),
