@@ -19,7 +19,8 @@ tag                    region                   use
 :data:`ARM_END` 21–23  r ≥ arm_end              the part of arm i carried rigidly by servo i's horn
 =====================  =======================  ======================================================
 
-Defaults: ring 5–10 mm, centre r < 20 mm (just beyond the re-entrant corners, so the centre holds the whole hub
+With ``arm_end_cut = "straight"`` the arm ends are ``x · e_i ≥ arm_end`` (a straight cut across each arm) and
+the arms reach up to that line. Defaults: ring 5–10 mm, centre r < 20 mm (just beyond the re-entrant corners, so the centre holds the whole hub
 where the arms overlap and each arm region is a plain strip), arm ends r ≥ 45 mm. Named unions of tags are in
 :data:`REGIONS` (e.g. ``"centre" = (RING, CENTRE)``, ``"arm1" = (12, 22)``). The plate has no facet tags.
 
@@ -72,6 +73,7 @@ __all__ = [
     "ARM",
     "ARM_ANGLES_DEG",
     "ARM_END",
+    "ARM_END_CUTS",
     "CENTRE",
     "PAPER_H",
     "REGIONS",
@@ -107,6 +109,8 @@ REGIONS: dict[str, tuple[int, ...]] = {
 }
 #: Element size (m) of the paper-like mesh: with the default geometry it gives 2694 tetrahedra (paper: 2684).
 PAPER_H: float = 0.0052
+#: Shapes of the boundary between an arm and its end (:attr:`TripodGeometry.arm_end_cut`).
+ARM_END_CUTS: tuple[str, str] = ("arc", "straight")
 #: Opening angle (rad) of the fundamental wedge ``0 ≤ φ ≤ 60°`` that gmsh meshes (:func:`make_tripod`).
 WEDGE_ANGLE: float = math.pi / 3
 
@@ -158,7 +162,8 @@ class TripodGeometry:
     centre_radius : float
         Outer radius of the central region; beyond the re-entrant corners and their fillets.
     arm_end_radius : float
-        The arm ends ``r ≥ arm_end_radius`` are carried rigidly by the servo horns.
+        Where the arm ends begin: ``r ≥ arm_end_radius`` (``arm_end_cut = "arc"``) or ``x · e_i ≥ arm_end_radius``
+        (``"straight"``).
     fillet_radius : float
         Radius of the fillets of the three re-entrant corners; 0 for sharp corners.
     servo_radius : float
@@ -167,6 +172,11 @@ class TripodGeometry:
         Length of a servo horn (for the scene's bookkeeping; the arm end's motion only needs the servo axis).
     pivot_z : float
         Height of the servo axes (0: the plate's mid-plane).
+    arm_end_cut : str
+        Shape of the boundary between arm i and its end: ``"arc"`` (default), the circle ``r = arm_end_radius``;
+        ``"straight"``, the line across the arm at ``arm_end_radius`` along it (``x · e_i = arm_end_radius``), so
+        that the edge of a clamp box across the arm there (the SoftRobots Tripod tutorial's box clamps the arm's
+        last 10 mm, 45–55 mm out along it) is a line of mesh nodes and faces instead of cutting through cells.
 
     """
 
@@ -181,8 +191,12 @@ class TripodGeometry:
     servo_radius: float = 60e-3
     horn_length: float = 25e-3
     pivot_z: float = 0.0
+    arm_end_cut: str = "arc"
 
     def __post_init__(self) -> None:
+        if self.arm_end_cut not in ARM_END_CUTS:
+            raise InputError(f"Tripod arm_end_cut must be one of {', '.join(map(repr, ARM_END_CUTS))}, "
+                             f"got {self.arm_end_cut!r}")
         for key in ("thickness", "arm_width", "arm_length", "hole_radius", "ring_radius", "centre_radius",
                     "arm_end_radius", "servo_radius", "horn_length"):
             value = getattr(self, key)
@@ -240,8 +254,11 @@ class TripodGeometry:
 
     @property
     def arm_end_area(self) -> float:
-        """Exact area of one arm end ``{r ≥ R} ∩ arm`` (m²): ``w L − (w/2) √(R² − w²/4) − R² asin(w/(2R))``."""
+        """Exact area of one arm end (m²): ``{r ≥ R} ∩ arm``, ``w L − (w/2) √(R² − w²/4) − R² asin(w/(2R))``
+        (``arm_end_cut = "arc"``), or the rectangle ``w (L − R)`` (``"straight"``)."""
         w, L, R = self.arm_width, self.arm_length, self.arm_end_radius
+        if self.arm_end_cut == "straight":
+            return w * (L - R)
         return w * L - w / 2 * math.sqrt(R**2 - w**2 / 4) - R**2 * math.asin(w / (2 * R))
 
     @property
@@ -269,13 +286,31 @@ class TripodGeometry:
     def build_gmsh_wedge(self) -> None:
         """Create the tagged fundamental wedge ``0° ≤ φ ≤ 60°`` of the plate in the current gmsh model (OCC).
 
-        Called on rank 0 only. The outline is built in the plane ``z = −thickness/2``: fused arm rectangles,
-        fillet patches (kite minus disc), minus the hole, intersected with the wedge (a triangle with a vertex at
-        the origin and sides along φ = 0° and φ = 60°, the mirror lines through arm 0 and between arms 0 and 1);
-        it is split by the discs ``r < ring_radius``, ``r < centre_radius`` and ``r < arm_end_radius`` (the
-        fragment map tells which discs hold each piece), each piece is extruded by ``thickness`` and the volumes
-        are fragmented so that neighbouring regions share their interfaces. Outside the centre the wedge holds
-        only arm 0, so its regions are tagged ``RING``, ``CENTRE``, ``ARM[0]`` and ``ARM_END[0]``.
+        Called on rank 0 only. The outline is built in the plane ``z = −thickness/2`` (:meth:`build_gmsh_wedge_face`),
+        each piece is extruded by ``thickness`` and the volumes are fragmented so that neighbouring regions share
+        their interfaces. Outside the centre the wedge holds only arm 0, so its regions are tagged ``RING``,
+        ``CENTRE``, ``ARM[0]`` and ``ARM_END[0]``.
+        """
+        occ = gmsh.model.occ
+        pieces, tags = self.build_gmsh_wedge_face()
+        volumes = [next(dt for dt in occ.extrude([(2, piece)], 0.0, 0.0, self.thickness) if dt[0] == 3)
+                   for piece in pieces]
+        _, volume_map = occ.fragment(volumes[:1], volumes[1:])
+        occ.synchronize()
+        for tag in sorted(set(tags)):
+            members = [vt for t, vols in zip(tags, volume_map) if t == tag for _, vt in vols]
+            gmsh.model.addPhysicalGroup(3, members, tag)
+
+    def build_gmsh_wedge_face(self, physical: bool = False) -> tuple[list[int], list[int]]:
+        """Create the tagged outline of the fundamental wedge in the plane ``z = −thickness/2`` (OCC, rank 0 only).
+
+        Fused arm rectangles, fillet patches (kite minus disc), minus the hole, intersected with the wedge (a
+        triangle with a vertex at the origin and sides along φ = 0° and φ = 60°, the mirror lines through arm 0 and
+        between arms 0 and 1); it is split by the discs ``r < ring_radius``, ``r < centre_radius`` and
+        ``r < arm_end_radius`` (or, with ``arm_end_cut = "straight"``, the half-plane ``x < arm_end_radius``, which
+        holds the centre disc; the fragment map tells which of them hold each piece). Returns the surface tags of the
+        pieces and the cell tag of each; with ``physical`` the model is synchronized and each region is a 2D
+        physical group of its cell tag.
         """
         occ = gmsh.model.occ
         z0 = -self.thickness / 2
@@ -295,27 +330,27 @@ class TripodGeometry:
         lines = [occ.addLine(corners[k], corners[(k + 1) % 3]) for k in range(3)]
         wedge = occ.addPlaneSurface([occ.addCurveLoop(lines)])
         plate, _ = occ.intersect(plate, [(2, wedge)])
-        radii = (self.ring_radius, self.centre_radius, self.arm_end_radius)
+        radii = (self.ring_radius, self.centre_radius) + ((self.arm_end_radius,) if self.arm_end_cut == "arc" else ())
         discs = [(2, occ.addDisk(0.0, 0.0, z0, r, r)) for r in radii]
+        if self.arm_end_cut == "straight":  # the half-plane x < arm_end_radius, as far as the wedge reaches
+            discs.append((2, occ.addRectangle(-far, -far, z0, far + self.arm_end_radius, 2 * far)))
         _, piece_map = occ.fragment(plate, discs)
         plate_pieces = {tag for pieces in piece_map[: len(plate)] for _, tag in pieces}
         in_discs = [{tag for _, tag in pieces} for pieces in piece_map[len(plate) :]]
         occ.remove([(2, tag) for tag in set().union(*in_discs) - plate_pieces], recursive=True)
 
-        volumes, tags = [], []
-        for piece in sorted(plate_pieces):
-            n_discs = sum(piece in disc for disc in in_discs)  # 3: ring, 2: centre, 1: arm, 0: arm end
-            tags.append({3: RING, 2: CENTRE, 1: ARM[0], 0: ARM_END[0]}[n_discs])
-            volumes.append(next(dt for dt in occ.extrude([(2, piece)], 0.0, 0.0, self.thickness) if dt[0] == 3))
-        _, volume_map = occ.fragment(volumes[:1], volumes[1:])
-        occ.synchronize()
-        for tag in sorted(set(tags)):
-            members = [vt for t, vols in zip(tags, volume_map) if t == tag for _, vt in vols]
-            gmsh.model.addPhysicalGroup(3, members, tag)
+        pieces = sorted(plate_pieces)
+        # 3 discs hold a piece of the ring, 2 of the centre, 1 of the arm, 0 of the arm end
+        tags = [{3: RING, 2: CENTRE, 1: ARM[0], 0: ARM_END[0]}[sum(p in disc for disc in in_discs)] for p in pieces]
         expected = {RING, CENTRE, ARM[0], ARM_END[0]}
         if set(tags) != expected:
             raise ComputationError(f"Tripod wedge regions came out as cell tags {sorted(set(tags))}, "
                                    f"expected {sorted(expected)}")
+        if physical:
+            occ.synchronize()
+            for tag in sorted(set(tags)):
+                gmsh.model.addPhysicalGroup(2, [p for p, t in zip(pieces, tags) if t == tag], tag)
+        return pieces, tags
 
     def _fillet_patch(self, i: int, z0: float) -> tuple[int, int]:
         """Fillet between arms i and i+1: the kite (corner, tangent point, fillet centre, tangent point) minus disc."""
@@ -346,7 +381,7 @@ class TripodMesh(TaggedMesh):
         return np.unique(np.concatenate([self.cell_tags.find(tag) for tag in REGIONS[region]]))
 
     def arm_end_dofs(self, V: dolfinx.fem.FunctionSpace, servo: int) -> np.ndarray:
-        """Dofs of ``V`` on the arm end carried by ``servo`` (0, 1, 2): every node of the cells r ≥ arm_end_radius.
+        """Dofs of ``V`` on the arm end carried by ``servo`` (0, 1, 2): every node of the cells of ``arm_end{servo}``.
 
         Block indices for a vector space, as ``fem.locate_dofs_topological(V, 3, cells)`` returns them; pass them
         with a Function interpolating :meth:`ServoFrame.displacement` to ``fem.dirichletbc``.
@@ -393,6 +428,95 @@ def _mesh_wedge(geometry: TripodGeometry, h: float, order: int) -> tuple[np.ndar
     return x, topology["topology"].astype(np.int64), topology["cell_data"].astype(np.int32), int(cell_type)
 
 
+#: gmsh's node order of the 10-node tetrahedron's edges (its nodes 4–9 are the midpoints of these vertex pairs).
+_TET10_EDGES: tuple[tuple[int, int], ...] = ((0, 1), (1, 2), (2, 0), (3, 0), (3, 2), (3, 1))
+
+
+def _mesh_wedge_face(geometry: TripodGeometry, h: float, order: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mesh the wedge's outline (z = −thickness/2) with triangles of size ``h`` (rank 0 only).
+
+    Returns the nodes (n, 3), the triangles in gmsh's node order (3 or 6 nodes: vertices, then the midpoints of
+    edges 0–1, 1–2, 2–0) and their cell tags; every returned node belongs to a triangle.
+    """
+    start = time.perf_counter()
+    gmsh.initialize()
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add("tripod_wedge_face")
+        geometry.build_gmsh_wedge_face(physical=True)
+        gmsh.model.mesh.setSize(gmsh.model.getEntities(0), h)
+        gmsh.option.setNumber("Mesh.MeshSizeMax", h)
+        gmsh.model.mesh.generate(2)
+        if order > 1:
+            gmsh.model.mesh.setOrder(order)
+        x = dolfinx.io.gmshio.extract_geometry(gmsh.model)
+        (_, topology), = dolfinx.io.gmshio.extract_topology_and_markers(gmsh.model).items()
+    finally:
+        gmsh.finalize()
+    logger.info("gmsh meshed the Tripod wedge's outline with h = %g m in %.2f s", h, time.perf_counter() - start)
+    triangles = topology["topology"].astype(np.int64)
+    used, triangles = np.unique(triangles, return_inverse=True)
+    return x[used], triangles.reshape(-1, 3 * order), topology["cell_data"].astype(np.int32)
+
+
+def _extrude_layers(
+    x2: np.ndarray, triangles: np.ndarray, tags2: np.ndarray, thickness: float, layers: int, order: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Extrude a triangulated outline (z = −thickness/2) through the thickness in ``layers`` equal layers of
+    prisms, each split into three tetrahedra (gmsh's node order, positively oriented; 10 nodes for ``order`` 2).
+
+    The split is conforming: with the triangle's vertices ordered by node index a < b < c, the prism between
+    layers k and k+1 is (a b c a'), (b c a' b'), (c a' b' c'), so the diagonal of every side face joins the
+    lower-indexed vertex's top to the other's bottom whichever prism it belongs to. The midpoint of an edge of a
+    tetrahedron (order 2) is the outline's midpoint node of the edge's footprint (curved arcs stay curved), at the
+    mean height of its ends.
+    """
+    vertices = np.unique(triangles[:, :3])
+    n_v = len(vertices)
+    index = np.full(len(x2), -1, dtype=np.int64)
+    index[vertices] = np.arange(n_v)
+    z = -thickness / 2 + thickness * np.arange(layers + 1) / layers
+    x_vertices = np.concatenate([np.column_stack([x2[vertices, :2], np.full(n_v, zk)]) for zk in z])
+    tri = np.sort(index[triangles[:, :3]], axis=1)  # a < b < c
+    a, b, c = tri.T
+    tets, tags = [], []
+    for k in range(layers):
+        lo, hi = k * n_v, (k + 1) * n_v
+        tets += [np.column_stack([a + lo, b + lo, c + lo, a + hi]), np.column_stack([b + lo, c + lo, a + hi, b + hi]),
+                 np.column_stack([c + lo, a + hi, b + hi, c + hi])]
+        tags += [tags2] * 3
+    tets, tags = np.concatenate(tets), np.concatenate(tags)
+    p = x_vertices[tets]
+    negative = np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), p[:, 3] - p[:, 0]) < 0
+    tets[negative] = tets[negative][:, [1, 0, 2, 3]]
+    if order == 1:
+        return x_vertices, tets, tags
+    # Edge midpoints: the outline's midpoint of the footprint (a, b) of each 3D edge, or the vertex for a vertical one.
+    footprint_mid = {}
+    for local in ((0, 1, 3), (1, 2, 4), (2, 0, 5)):
+        for u, v, m in zip(index[triangles[:, local[0]]], index[triangles[:, local[1]]], triangles[:, local[2]]):
+            footprint_mid[(min(u, v), max(u, v))] = m
+    pairs = np.concatenate([tets[:, list(e)] for e in _TET10_EDGES])  # (6 n_tets, 2), edge by edge
+    keys, inverse = np.unique(np.sort(pairs, axis=1), axis=0, return_inverse=True)
+    ends = keys % n_v
+    mid_xy = np.array([x2[footprint_mid[(min(u, v), max(u, v))], :2] if u != v else x_vertices[u, :2]
+                       for u, v in ends])
+    mid_z = 0.5 * (x_vertices[keys[:, 0], 2] + x_vertices[keys[:, 1], 2])
+    x = np.concatenate([x_vertices, np.column_stack([mid_xy, mid_z])])
+    midpoints = (len(x_vertices) + np.reshape(inverse, (len(_TET10_EDGES), -1))).T
+    return x, np.concatenate([tets, midpoints], axis=1), tags
+
+
+def _mesh_wedge_layered(
+    geometry: TripodGeometry, h: float, layers: int, order: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """The wedge as ``layers`` layers of tetrahedra through the thickness under an in-plane triangulation of size
+    ``h`` (rank 0 only): nodes, cells in gmsh order, cell tags, gmsh cell type (4: tet4, 11: tet10)."""
+    x2, triangles, tags2 = _mesh_wedge_face(geometry, h, order)
+    x, cells, tags = _extrude_layers(x2, triangles, tags2, geometry.thickness, layers, order)
+    return x, cells, tags, 4 if order == 1 else 11
+
+
 def _replicate_wedge(
     x_wedge: np.ndarray, cells_wedge: np.ndarray, tags_wedge: np.ndarray, tol: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -429,7 +553,7 @@ def _replicate_wedge(
 
 
 def make_tripod(
-    comm: MPI.Comm, h: float = PAPER_H, geometry: TripodGeometry | None = None, order: int = 1
+    comm: MPI.Comm, h: float = PAPER_H, geometry: TripodGeometry | None = None, order: int = 1, layers: int = 0
 ) -> TripodMesh:
     """Mesh the Tripod plate with tetrahedra of size ``h`` (m), tagged by region (:data:`REGIONS`), D3-invariant.
 
@@ -448,6 +572,12 @@ def make_tripod(
         Plate and servo parameters; defaults to ``TripodGeometry()`` (the tutorial's numbers).
     order : int
         Geometry degree, 1 or 2 (2 curves the arcs: hole, region boundaries, fillets).
+    layers : int
+        0 (default): gmsh's unstructured tetrahedra of size ``h`` everywhere, so ``h`` also sets the number of
+        elements through the thickness. n ≥ 1: a layered plate, the wedge's outline triangulated with size ``h``
+        and extruded through the thickness in n equal layers, each prism split into three tetrahedra
+        (:func:`_extrude_layers`): ``6 · 3 n`` tetrahedra per outline triangle of the wedge, n elements through the
+        thickness whatever the in-plane size.
 
     Returns
     -------
@@ -462,10 +592,16 @@ def make_tripod(
             f"({2 * geometry.thickness!r} m)"
         )
     check_order(order)
+    if isinstance(layers, bool) or not isinstance(layers, (int, np.integer)) or layers < 0:
+        raise InputError(f"Tripod layers = {layers!r} must be an integer ≥ 0 (0: unstructured tetrahedra, n ≥ 1: "
+                         "n element layers through the thickness)")
     start = time.perf_counter()
 
     def build():
-        x_wedge, cells_wedge, tags_wedge, cell_type = _mesh_wedge(geometry, h, order)
+        if layers:
+            x_wedge, cells_wedge, tags_wedge, cell_type = _mesh_wedge_layered(geometry, h, int(layers), order)
+        else:
+            x_wedge, cells_wedge, tags_wedge, cell_type = _mesh_wedge(geometry, h, order)
         return (*_replicate_wedge(x_wedge, cells_wedge, tags_wedge, 1e-9 * geometry.arm_length), cell_type)
 
     x, cells, tags, cell_type = on_rank0(comm, build, "gmsh failed to mesh the Tripod wedge") or (None,) * 4

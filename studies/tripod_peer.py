@@ -15,7 +15,10 @@ constants: the as-built robot on another homogenized foam (one γ per table: cas
 height and twist from rest to middle and top (Table I's quantities), the mesh, the Newton iterations and the wall and
 CPU time. For every sequence of three or more meshes that all reached the top, the observed order of convergence
 and the Richardson estimate are computed from the three finest (mesh size h ∝ N_cells^(−1/3)), with the relative
-change between the two finest meshes.
+change between the two finest meshes. ``--layers N ...`` runs every mesh size with each number of element layers
+through the plate (``[geometry] layers``; 0, the default, is the unstructured mesh) and ``--arm-end-cut straight``
+puts the clamp box's inner face on a line of mesh nodes (``[geometry] arm_end_cut``); the layered rows give a second
+kind of sequence, the number of layers at one in-plane size (h ∝ 1/n, ``refine = layers``).
 
 ``krylov``: the shipped case B with its own foam table (`cube`) and ``corotational_sofa`` (SOFA's element: rotation
 from the element's edges, frozen-rotation tangent, never loses strong ellipticity). Newton's system is the exact
@@ -33,7 +36,7 @@ and why, not a failed check.
 
 Run: ``python studies/tripod_peer.py converge --out DIR [--cases A B] [--models corotational corotational_sofa]
 [--p1 0.008 0.0052 0.0035] [--p2 0.010 0.008 0.006] [--p2-models corotational corotational_sofa]
-[--table CSV ...] [--ci]``; ``python studies/tripod_peer.py krylov --out DIR --h 0.0052 [--degree 1]
+[--table CSV ...] [--layers 0 1 2 ...] [--arm-end-cut arc|straight] [--ci]``; ``python studies/tripod_peer.py krylov --out DIR --h 0.0052 [--degree 1]
 [--variants default restart300 ...]``. Rows go to ``DIR/tripod_peer_converge.csv`` (and
 ``tripod_peer_convergence.csv``) or ``DIR/tripod_peer_krylov_*.csv``; ``python studies/tripod_peer.py table
 CSV... [--out DIR]`` merges the rows of several ``converge`` runs and prints their convergence table (one sequence
@@ -102,12 +105,18 @@ def table_for(region: dict, tables: list[str], gammas: dict[str, set[float]], na
 
 
 def peer_scene_dict(case: str, h: float, model: str, degree: int, petsc: dict | None = None,
-                    peer: bool = True, tables: list[str] | None = None) -> dict:
+                    peer: bool = True, tables: list[str] | None = None, layers: int = 0,
+                    arm_end_cut: str = "arc") -> dict:
     """The shipped as-built scene of ``case`` at mesh size ``h``, degree ``degree``, with the peer's constants
     (``peer``), or with every foam region reading the first of the foam tables ``tables`` (aggregated CSV paths)
-    that holds its γ, the scene otherwise unchanged."""
+    that holds its γ, the scene otherwise unchanged; ``layers`` and ``arm_end_cut`` are the ``[geometry]`` keys
+    (0 and ``"arc"``: the shipped mesh)."""
     data = tripod_as_built.scene_dict(SCENES[case], h, model)
     data["fem"]["degree"] = degree
+    if layers:
+        data["geometry"]["layers"] = layers
+    if arm_end_cut != "arc":
+        data["geometry"]["arm_end_cut"] = arm_end_cut
     if petsc:
         data["fem"]["petsc"] = dict(petsc)
     if tables:
@@ -128,16 +137,16 @@ def peer_scene_dict(case: str, h: float, model: str, degree: int, petsc: dict | 
 
 
 def run_one(case: str, h: float, model: str, degree: int, comm, petsc: dict | None = None, peer: bool = True,
-            variant: str = "", tables: list[str] | None = None) -> dict:
+            variant: str = "", tables: list[str] | None = None, layers: int = 0, arm_end_cut: str = "arc") -> dict:
     """One run; a failed step is a row (the step, the fraction of it reached, the reason), not an exception."""
     foam = "paper" if peer else "table"
     if tables:  # each table by its name and the start of its digest (two seeds' tables share a name)
         foam = "+".join(f"{Path(t).stem}@{hashlib.sha256(Path(t).read_bytes()).hexdigest()[:8]}" for t in tables)
-    row = {"case": case, "foam": foam, "model": model, "degree": degree, "h_mm": h * 1e3,
-           "variant": variant, "status": "ok"}
+    row = {"case": case, "foam": foam, "model": model, "degree": degree, "h_mm": h * 1e3, "layers": layers,
+           "arm_end_cut": arm_end_cut, "variant": variant, "status": "ok"}
     start, cpu = time.perf_counter(), time.process_time()
-    result = tripod_as_built.run_changes(parse_scene(peer_scene_dict(case, h, model, degree, petsc, peer, tables)),
-                                         comm, row)
+    data = peer_scene_dict(case, h, model, degree, petsc, peer, tables, layers, arm_end_cut)
+    result = tripod_as_built.run_changes(parse_scene(data), comm, row)
     steps = [] if result is None else result.steps
     if result is not None:
         row["n_cells"], row["n_dofs"] = result.n_cells, result.n_dofs
@@ -173,23 +182,43 @@ def richardson(h: list[float], f: list[float]) -> tuple[float, float]:
     return p, f3 - C * h3**p
 
 
+def _mesh_key(r: dict) -> tuple:
+    """The mesh family of a row: its layers (0: unstructured) and arm-end cut (older rows: 0, ``"arc"``)."""
+    return int(r.get("layers", 0) or 0), r.get("arm_end_cut", "arc") or "arc"
+
+
 def convergence(rows: list[dict]) -> list[dict]:
-    """Per (case, model, degree, foam) sequence that reached the top on ≥ 3 meshes: order, Richardson limit, last
-    change."""
+    """Sequences of ≥ 2 meshes that reached the top, each with its order, Richardson limit (3 meshes) and last change.
+
+    ``refine = "mesh"``: per (case, model, degree, foam, layers, cut), the meshes by size, h ∝ N_cells^(−1/3)
+    (with n ≥ 1 layers this refines in-plane only, at n elements through the thickness); ``refine = "layers"``: per
+    (case, model, degree, foam, in-plane h, cut), the layered meshes by their number of layers n, h ∝ 1/n.
+    """
     out = []
-    keys = sorted({(r["case"], r["model"], r["degree"], r.get("foam", "paper")) for r in rows})
-    for case, model, degree, foam in keys:
-        seq = sorted((r for r in rows if (r["case"], r["model"], r["degree"], r.get("foam", "paper"))
-                      == (case, model, degree, foam) and "da_top_deg" in r), key=lambda r: -r["h_mm"])
+    done = [r for r in rows if "da_top_deg" in r]
+    families = {}
+    for r in done:
+        base = (r["case"], r["model"], r["degree"], r.get("foam", "paper"))
+        layers, cut = _mesh_key(r)
+        families.setdefault(("mesh", *base, layers, cut), []).append(r)
+        if layers:
+            families.setdefault(("layers", *base, r["h_mm"], cut), []).append(r)
+    for key in sorted(families, key=str):
+        refine, case, model, degree, foam = key[:5]
+        seq = sorted(families[key], key=lambda r: r["n_cells"])
+        # two sizes may give the same outline triangulation (gmsh divides the wedge's short edges alike): one mesh
+        seq = [r for k, r in enumerate(seq) if k == 0 or r["n_cells"] != seq[k - 1]["n_cells"]]
         if len(seq) < 2:
             continue
         seq = seq[-3:]
-        heff = [r["n_cells"] ** (-1.0 / 3.0) for r in seq]
+        heff = [r["n_cells"] ** (-1.0 / 3.0) if refine == "mesh" else 1.0 / _mesh_key(r)[0] for r in seq]
         for q in QUANTITIES:
             f = [r[q] for r in seq]
             p, limit = richardson(heff, f) if len(seq) == 3 else (math.nan, math.nan)
-            out.append({"case": case, "model": model, "degree": degree, "foam": foam, "quantity": q,
+            out.append({"case": case, "model": model, "degree": degree, "foam": foam, "refine": refine,
+                        "arm_end_cut": key[-1], "quantity": q,
                         "h_mm": " ".join(f"{r['h_mm']:g}" for r in seq),
+                        "layers": " ".join(str(_mesh_key(r)[0]) for r in seq),
                         "n_cells": " ".join(str(r["n_cells"]) for r in seq),
                         "values": " ".join(f"{v:.3f}" for v in f), "order": p, "richardson": limit,
                         "last_change": abs(f[-1] - f[-2]) / abs(f[-1]) if f[-1] else math.nan})
@@ -212,6 +241,7 @@ def write_csv(rows: list[dict], path: Path) -> None:
 def print_row(r: dict) -> None:
     nan = math.nan
     print(f"case {r['case']} {r['foam']:5s} {r['model']:17s} P{r['degree']} h {r['h_mm']:4.1f} mm "
+          f"layers {r.get('layers', 0)} {r.get('arm_end_cut', 'arc')} "
           f"{r.get('n_cells', ''):>6} cells {r.get('n_dofs', ''):>7} dofs {r['variant']:10s}| rest h "
           f"{r.get('rest_h_mm', nan):6.2f} a {r.get('rest_deg', nan):7.2f} | Δh {r.get('dh_middle_mm', nan):6.2f} "
           f"{r.get('dh_top_mm', nan):6.2f} mm | Δa {r.get('da_middle_deg', nan):6.2f} {r.get('da_top_deg', nan):6.2f}° "
@@ -255,11 +285,13 @@ def elements_agree(rows: list[dict]) -> list[str]:
 
 
 def converge(args, comm) -> int:
-    runs = [(case, model, 1, h) for case in args.cases for model in args.models for h in args.p1]
-    runs += [(case, model, 2, h) for case in args.cases for model in args.p2_models for h in args.p2]
+    runs = [(case, model, 1, h, n) for case in args.cases for model in args.models for h in args.p1
+            for n in args.layers]
+    runs += [(case, model, 2, h, n) for case in args.cases for model in args.p2_models for h in args.p2
+             for n in args.layers]
     rows = []
-    for case, model, degree, h in runs:
-        rows.append(run_one(case, h, model, degree, comm, tables=args.table))
+    for case, model, degree, h, n in runs:
+        rows.append(run_one(case, h, model, degree, comm, tables=args.table, layers=n, arm_end_cut=args.arm_end_cut))
         if comm.rank == 0:
             print_row(rows[-1])
     failures = self_check()
@@ -299,7 +331,8 @@ def krylov(args, comm) -> int:
 
 def print_convergence(table: list[dict]) -> None:
     for c in table:
-        print(f"case {c['case']} {c['model']:17s} P{c['degree']} {c['quantity']:14s} h {c['h_mm']:14s} mm: "
+        print(f"case {c['case']} {c['model']:17s} P{c['degree']} {c.get('arm_end_cut', 'arc'):8s} by "
+              f"{c.get('refine', 'mesh'):6s} {c['quantity']:14s} h {c['h_mm']:14s} mm layers {c.get('layers', '0'):7s}: "
               f"{c['values']:24s} order {c['order']:5.2f} Richardson {c['richardson']:8.3f} "
               f"last change {c['last_change']:.2%}", flush=True)
 
@@ -314,7 +347,7 @@ def tabulate(args) -> int:
                 for k in ("h_mm", *QUANTITIES):
                     if k in row:
                         row[k] = float(row[k])
-                for k in ("degree", "n_cells"):
+                for k in ("degree", "n_cells", "layers"):
                     if k in row:
                         row[k] = int(row[k])
                 rows.append(row)
@@ -342,6 +375,11 @@ def main(argv=None) -> int:
     c.add_argument("--table", nargs="+", default=None, metavar="CSV",
                    help="foam tables (aggregated CSV paths) in place of the paper's constants: each foam region "
                         "reads the first that holds its gamma")
+    c.add_argument("--layers", type=int, nargs="+", default=[0], metavar="N",
+                   help="element layers through the plate's thickness ([geometry] layers; 0: unstructured "
+                        "tetrahedra of size h); every mesh size runs with each")
+    c.add_argument("--arm-end-cut", default="arc", choices=["arc", "straight"],
+                   help="[geometry] arm_end_cut: straight puts the clamp box's inner face on a line of mesh nodes")
     c.add_argument("--ci", action="store_true", help="case B, P1, h = 10 mm, both models, checked against each other")
     k = sub.add_parser("krylov", help="corotational_sofa's Krylov set-ups on the as-built rest step")
     k.add_argument("--out", type=Path, default=Path("out/tripod_peer"))

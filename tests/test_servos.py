@@ -71,11 +71,15 @@ def _box_nodes(X: np.ndarray, spec) -> np.ndarray:
     return np.flatnonzero(np.all(np.abs(local) <= 0.5 * np.array(spec["box"]) + 1e-12, axis=1))
 
 
-def test_clamp_boxes_carry_exactly_their_nodes_by_the_set_up_motion():
+@pytest.mark.parametrize("mesh", [{}, {"layers": 2, "arm_end_cut": "straight"}], ids=["shipped", "layered_straight"])
+def test_clamp_boxes_carry_exactly_their_nodes_by_the_set_up_motion(mesh):
     """After the rest step the nodes in each clamp box (the tutorial's [45, 15, 30] mm on the horn's tip: the arm's
     last 10 mm) are at R(θ)(X − p) + p + t (θ the set-up angle, t the set-up translation), recomputed from the
-    scene's numbers, to round-off; those are exactly the nodes prescribed; the plate bent (centimetres)."""
+    scene's numbers, to round-off; those are exactly the nodes prescribed; the plate bent (centimetres). On a
+    layered plate with the straight arm-end cut the box's inner face is a node line: the box carries exactly the
+    nodes of the arm-end cells, no node of a cell that it cuts."""
     data = scene("tripod_silicone", steps=1)
+    data["geometry"].update(mesh)
     data["steps"][0].update(increments=4, gravity=0.0)
     parsed = parse_scene(data)
     model = build_model(parsed, MPI.COMM_SELF)
@@ -89,6 +93,8 @@ def test_clamp_boxes_carry_exactly_their_nodes_by_the_set_up_motion():
         along = X[nodes] @ [math.cos(phi), math.sin(phi), 0.0]
         assert len(nodes) > 10 and along.min() >= 0.045 - 1e-12 and along.max() <= 0.055 + 1e-12
         np.testing.assert_array_equal(np.sort(model.problem.motions[name].dofs), nodes)
+        if mesh:
+            np.testing.assert_array_equal(np.sort(model.tagged.arm_end_dofs(V, i)), nodes)
         R = _rodrigues(spec["axle"], math.radians(spec["setup_deg"]))
         p, t = np.array(spec["axle_point"]), np.array(spec["setup_translation"])
         expected = (X[nodes] - p) @ R.T + p + t - X[nodes]
@@ -192,3 +198,33 @@ def test_design_gradients_of_the_servo_angles_as_built():
     for name in names:
         central = (plus[name] - minus[name]) / 0.4
         assert central == pytest.approx(gradient[name]["servo0"], rel=1e-4), name
+
+
+@pytest.mark.mpi
+def test_a_layered_as_built_case_b_reaches_rest():
+    """Case B as built on a layered plate (P1, h = 10 mm in-plane, 2 layers through the 5 mm plate, straight arm-end
+    cut; the scene's own foam) reaches its rest pose with every cell upright, twisting clockwise seen from above (the
+    shipped spiral's sense at rest); under ``mpirun -n 2`` its probes equal a COMM_SELF run's."""
+    data = scene("tripod_case_b", steps=1)
+    data["geometry"].update(layers=2, arm_end_cut="straight")
+    data["steps"][0]["increments"] = 8
+    serial = run_scene(parse_scene(data), comm=MPI.COMM_SELF)
+    (rest,) = serial.steps
+    assert rest.label == "rest" and rest.min_det_F > 0.1
+    assert -30.0 < rest.probes["center_rotation"] < -10.0
+    if MPI.COMM_WORLD.size > 1:
+        parallel = run_scene(parse_scene(data), comm=MPI.COMM_WORLD)
+        for name, value in rest.probes.items():
+            assert parallel.steps[0].probes[name] == pytest.approx(value, rel=1e-7, abs=1e-10), name
+
+
+@pytest.mark.parametrize(("key", "value", "match"), [
+    ("layers", -1, r"geometry\.layers: -1 is out of range; valid: an integer >= 0"),
+    ("layers", 2.0, r"geometry\.layers: expected an integer, got"),
+    ("arm_end_cut", "round", r"geometry\.arm_end_cut: 'round' is not valid; valid: 'arc', 'straight'"),
+])
+def test_bad_layer_and_cut_keys_are_refused_before_any_work(key, value, match):
+    data = scene("tripod_case_b")
+    data["geometry"][key] = value
+    with pytest.raises(SceneError, match=match):
+        parse_scene(data)

@@ -267,3 +267,67 @@ def test_bad_mesh_arguments_are_rejected(tripod):
     V = dolfinx.fem.VectorFunctionSpace(tripod.mesh, ("CG", 1))
     with pytest.raises(ValueError, match="servo must be 0, 1 or 2, got 3"):
         tripod.arm_end_dofs(V, 3)
+
+
+# Layered plates (``layers = n``): the wedge's outline triangulated with size h and extruded in n layers of prisms,
+# each split into three tetrahedra; and the straight arm-end cut (``arm_end_cut = "straight"``).
+LAYERED_H = 0.010
+STRAIGHT = TripodGeometry(arm_end_cut="straight")
+
+
+@pytest.fixture(scope="module")
+def layered():
+    """n = 1 and n = 3 layers on the same outline (h = 10 mm), P1 and P2 geometry, and a straight-cut P2 plate."""
+    return {(n, order): make_tripod(MPI.COMM_WORLD, LAYERED_H, order=order, layers=n)
+            for n, order in ((1, 1), (3, 1), (3, 2))} | {
+        ("straight", 2): make_tripod(MPI.COMM_WORLD, LAYERED_H, STRAIGHT, order=2, layers=2)}
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("key", [(3, 1), (3, 2), ("straight", 2)])
+def test_a_layered_plate_is_invariant_under_the_symmetry_group(layered, key):
+    """The layered mesh is D3-invariant node for node and cell for cell (the mirror sides of the extruded wedge
+    conform), for P1 and P2 geometry and for the straight arm-end cut."""
+    test_nodes_cells_and_tags_are_invariant_under_the_symmetry_group(layered[key], layered[key], 1)
+
+
+@pytest.mark.mpi
+def test_a_layered_plate_has_its_layers_and_the_volume_of_its_outline(layered):
+    """n layers: the nodes lie on the n + 1 planes z = −t/2 + k t/n, every tetrahedron spans exactly one layer, there
+    are 3 n tetrahedra per outline triangle; the volume is the outline's area times the thickness whatever n (to
+    round-off), and with curved (P2) arcs it is the plate's analytic volume to the quadrature of the arcs."""
+    t = GEOMETRY.thickness
+    one, three = layered[(1, 1)], layered[(3, 1)]
+    assert three.n_cells == 3 * one.n_cells and one.n_cells % 18 == 0
+    nodes, cell_x, _ = gathered_mesh(three)
+    planes = -t / 2 + t * np.arange(4) / 3
+    assert np.abs(nodes[:, 2][:, None] - planes).min(axis=1).max() < 1e-15
+    span = np.ptp(cell_x[:, :, 2], axis=1)
+    np.testing.assert_allclose(span, t / 3, rtol=1e-12)
+    v1, v3 = sum(region_volumes(one).values()), sum(region_volumes(three).values())
+    assert v3 == pytest.approx(v1, rel=1e-13)
+    assert 0 < v1 / GEOMETRY.volume - 1 < 5e-3  # P1: the hole's and the cuts' arcs are chords
+    assert sum(region_volumes(layered[(3, 2)]).values()) == pytest.approx(GEOMETRY.volume, rel=5e-5)
+
+
+@pytest.mark.mpi
+def test_a_straight_arm_end_cut_gives_exact_rectangular_arm_ends(layered):
+    """``arm_end_cut = "straight"``: each arm end is the rectangle w × (L − R) × t, exactly (straight edges only), and
+    lies beyond the line x · e_i = R; the whole plate keeps its analytic volume."""
+    tripod = layered[("straight", 2)]
+    volumes = region_volumes(tripod)
+    assert STRAIGHT.arm_end_area == pytest.approx(0.030 * 0.010, rel=1e-15)
+    for i, e in enumerate(STRAIGHT.arm_directions()):
+        assert volumes[ARM_END[i]] == pytest.approx(STRAIGHT.arm_end_area * STRAIGHT.thickness, rel=1e-13)
+        lo, _ = global_extremes(tripod.mesh.comm, cell_node_coordinates(tripod, [ARM_END[i]]) @ e)
+        assert lo == pytest.approx(STRAIGHT.arm_end_radius, abs=1e-15)
+    assert sum(volumes.values()) == pytest.approx(STRAIGHT.volume, rel=5e-5)
+
+
+def test_bad_layers_and_cuts_are_rejected():
+    with pytest.raises(ValueError, match=r"Tripod layers = -1 must be an integer ≥ 0"):
+        make_tripod(MPI.COMM_WORLD, LAYERED_H, layers=-1)
+    with pytest.raises(ValueError, match=r"Tripod layers = 1.5 must be an integer"):
+        make_tripod(MPI.COMM_WORLD, LAYERED_H, layers=1.5)
+    with pytest.raises(ValueError, match=r"arm_end_cut must be one of 'arc', 'straight', got 'square'"):
+        TripodGeometry(arm_end_cut="square")

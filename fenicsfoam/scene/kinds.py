@@ -595,7 +595,9 @@ class GeometryKey:
     """A key of ``[geometry]`` that a builder declares: its default and what values are valid."""
 
     default: Any
-    kind: str = "length"   #: "length" (> 0, m), "length0" (≥ 0, m), "number" (finite), "bool", "order" (1 | 2)
+    kind: str = "length"   #: "length" (> 0, m), "length0" (≥ 0, m), "number" (finite), "bool", "order" (1 | 2),
+    #: "count" (an integer ≥ 0), "choice" (one of ``choices``)
+    choices: tuple[str, ...] = ()
 
     def read(self, table: _Table, key: str) -> Any:
         """The key's validated value (its default when absent)."""
@@ -603,6 +605,10 @@ class GeometryKey:
             return table.boolean(key, self.default)
         if self.kind == "order":
             return table.integer(key, default=self.default, choices=(1, 2))
+        if self.kind == "count":
+            return table.integer(key, default=self.default, minimum=0)
+        if self.kind == "choice":
+            return table.string(key, default=self.default, choices=self.choices)
         if self.kind == "number":
             return table.number(key, default=self.default)
         if self.kind == "length0":
@@ -695,9 +701,10 @@ def _finger_mesh(comm, params: dict[str, Any]):
 
 
 def _tripod_keys() -> dict[str, GeometryKey]:
-    from meshes.tripod import PAPER_H, TripodGeometry
-    return {"h": GeometryKey(PAPER_H), "order": GeometryKey(1, "order"),
-            **_dataclass_keys(TripodGeometry, {"fillet_radius": "length0", "pivot_z": "number"})}
+    from meshes.tripod import ARM_END_CUTS, PAPER_H, TripodGeometry
+    return {"h": GeometryKey(PAPER_H), "order": GeometryKey(1, "order"), "layers": GeometryKey(0, "count"),
+            **_dataclass_keys(TripodGeometry, {"fillet_radius": "length0", "pivot_z": "number"}),
+            "arm_end_cut": GeometryKey("arc", "choice", ARM_END_CUTS)}
 
 
 def _tripod_groups():
@@ -709,12 +716,12 @@ def _tripod_mesh(comm, params: dict[str, Any]):
     from foambase.errors import InputError
     from meshes.tripod import TripodGeometry, make_tripod
     params = dict(params)
-    h, order = params.pop("h"), params.pop("order")
+    h, order, layers = params.pop("h"), params.pop("order"), params.pop("layers")
     try:
         geometry = TripodGeometry(**params)
     except ValueError as exc:  # named by the scene builder
         raise InputError(str(exc)) from exc
-    return make_tripod(comm, h, geometry, order)
+    return make_tripod(comm, h, geometry, order, layers)
 
 
 def _read_mesh_file(geometry: _Table, base) -> MeshInfo:
