@@ -19,10 +19,10 @@ tag                    region                   use
 :data:`ARM_END` 21–23  r ≥ arm_end              the part of arm i carried rigidly by servo i's horn
 =====================  =======================  ======================================================
 
-With ``arm_end_cut = "straight"`` the arm ends are ``x · e_i ≥ arm_end`` (a straight cut across each arm) and
-the arms reach up to that line. Defaults: ring 5–10 mm, centre r < 20 mm (just beyond the re-entrant corners, so the centre holds the whole hub
-where the arms overlap and each arm region is a plain strip), arm ends r ≥ 45 mm. Named unions of tags are in
-:data:`REGIONS` (e.g. ``"centre" = (RING, CENTRE)``, ``"arm1" = (12, 22)``). The plate has no facet tags.
+With ``arm_end_cut = "straight"`` the arm ends are ``x · e_i ≥ arm_end`` (a straight cut across each arm) and the arms
+reach up to that line. Defaults: ring 5–10 mm, centre r < 20 mm (just beyond the re-entrant corners, so the centre
+holds the whole hub where the arms overlap and each arm region is a plain strip), arm ends r ≥ 45 mm. Named unions of
+tags are in :data:`REGIONS` (e.g. ``"centre" = (RING, CENTRE)``, ``"arm1" = (12, 22)``). The plate has no facet tags.
 
 Symmetric mesh (:func:`make_tripod`): the plate is invariant under the dihedral group D3 (:func:`symmetry_group`:
 rotations by 0°, 120°, 240° about e_z and the mirrors across the vertical planes through the arm axes), and so is
@@ -254,8 +254,11 @@ class TripodGeometry:
 
     @property
     def arm_end_area(self) -> float:
-        """Exact area of one arm end (m²): ``{r ≥ R} ∩ arm``, ``w L − (w/2) √(R² − w²/4) − R² asin(w/(2R))``
-        (``arm_end_cut = "arc"``), or the rectangle ``w (L − R)`` (``"straight"``)."""
+        """Exact area of one arm end (m²).
+
+        ``{r ≥ R} ∩ arm``, ``w L − (w/2) √(R² − w²/4) − R² asin(w/(2R))`` (``arm_end_cut = "arc"``), or the
+        rectangle ``w (L − R)`` (``"straight"``).
+        """
         w, L, R = self.arm_width, self.arm_length, self.arm_end_radius
         if self.arm_end_cut == "straight":
             return w * (L - R)
@@ -462,8 +465,10 @@ def _mesh_wedge_face(geometry: TripodGeometry, h: float, order: int) -> tuple[np
 def _extrude_layers(
     x2: np.ndarray, triangles: np.ndarray, tags2: np.ndarray, thickness: float, layers: int, order: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Extrude a triangulated outline (z = −thickness/2) through the thickness in ``layers`` equal layers of
-    prisms, each split into three tetrahedra (gmsh's node order, positively oriented; 10 nodes for ``order`` 2).
+    """Extrude a triangulated outline (z = −thickness/2) through the thickness in ``layers`` layers of tetrahedra.
+
+    Each layer holds one prism per triangle, split into three tetrahedra (gmsh's node order, positively oriented;
+    10 nodes for ``order`` 2).
 
     The split is conforming: with the triangle's vertices ordered by node index a < b < c, the prism between
     layers k and k+1 is (a b c a'), (b c a' b'), (c a' b' c'), so the diagonal of every side face joins the
@@ -510,8 +515,11 @@ def _extrude_layers(
 def _mesh_wedge_layered(
     geometry: TripodGeometry, h: float, layers: int, order: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """The wedge as ``layers`` layers of tetrahedra through the thickness under an in-plane triangulation of size
-    ``h`` (rank 0 only): nodes, cells in gmsh order, cell tags, gmsh cell type (4: tet4, 11: tet10)."""
+    """The wedge as ``layers`` layers of tetrahedra through the thickness (rank 0 only).
+
+    Under an in-plane triangulation of size ``h``: nodes, cells in gmsh order, cell tags, gmsh cell type (4: tet4,
+    11: tet10).
+    """
     x2, triangles, tags2 = _mesh_wedge_face(geometry, h, order)
     x, cells, tags = _extrude_layers(x2, triangles, tags2, geometry.thickness, layers, order)
     return x, cells, tags, 4 if order == 1 else 11

@@ -34,14 +34,13 @@ up to 12 % in height, P2 at 10 mm 0.7 % and 1.4°). A run whose rest step fails 
 cells, solver limits, docs/validation/2026-11-27-tripod-as-built.md) is a row with the step, the fraction reached
 and why, not a failed check.
 
-Run: ``python studies/tripod_peer.py converge --out DIR [--cases A B] [--models corotational corotational_sofa]
-[--p1 0.008 0.0052 0.0035] [--p2 0.010 0.008 0.006] [--p2-models corotational corotational_sofa]
-[--table CSV ...] [--layers 0 1 2 ...] [--arm-end-cut arc|straight] [--ci]``; ``python studies/tripod_peer.py krylov --out DIR --h 0.0052 [--degree 1]
-[--variants default restart300 ...]``. Rows go to ``DIR/tripod_peer_converge.csv`` (and
-``tripod_peer_convergence.csv``) or ``DIR/tripod_peer_krylov_*.csv``; ``python studies/tripod_peer.py table
-CSV... [--out DIR]`` merges the rows of several ``converge`` runs and prints their convergence table (one sequence
-per case, model, degree and foam).
-"""
+Run: ``python studies/tripod_peer.py converge --out DIR [--cases A B] [--models corotational corotational_sofa] [--p1
+0.008 0.0052 0.0035] [--p2 0.010 0.008 0.006] [--p2-models corotational corotational_sofa] [--table CSV ...] [--layers
+0 1 2 ...] [--arm-end-cut arc|straight] [--ci]``; ``python studies/tripod_peer.py krylov --out DIR --h 0.0052
+[--degree 1] [--variants default restart300 ...]``. Rows go to ``DIR/tripod_peer_converge.csv`` (and
+``tripod_peer_convergence.csv``) or ``DIR/tripod_peer_krylov_*.csv``; ``python studies/tripod_peer.py table CSV...
+[--out DIR]`` merges the rows of several ``converge`` runs and prints their convergence table (one sequence per case,
+model, degree and foam). """
 
 from __future__ import annotations
 
@@ -332,7 +331,8 @@ def krylov(args, comm) -> int:
 def print_convergence(table: list[dict]) -> None:
     for c in table:
         print(f"case {c['case']} {c['model']:17s} P{c['degree']} {c.get('arm_end_cut', 'arc'):8s} by "
-              f"{c.get('refine', 'mesh'):6s} {c['quantity']:14s} h {c['h_mm']:14s} mm layers {c.get('layers', '0'):7s}: "
+              f"{c.get('refine', 'mesh'):6s} {c['quantity']:14s} h {c['h_mm']:14s} mm "
+              f"layers {c.get('layers', '0'):7s}: "
               f"{c['values']:24s} order {c['order']:5.2f} Richardson {c['richardson']:8.3f} "
               f"last change {c['last_change']:.2%}", flush=True)
 
