@@ -410,11 +410,11 @@ def tripod_study(comm: MPI.Comm, size: dict) -> list[dict]:
     spec = scene.orientation
     geometry = dict(scene.geometry)
     del geometry["h"]
-    order = geometry.pop("order")
+    order, layers = geometry.pop("order"), geometry.pop("layers")
     steps = load_steps(scene)  # the scene's schedule: its servo angles in radians
     rows = []
     for h in size["tripod_h"]:
-        tripod = make_tripod(comm, h, TripodGeometry(**geometry), order)
+        tripod = make_tripod(comm, h, TripodGeometry(**geometry), order, layers)
         field = MaterialField.from_regions(tripod.mesh, tripod.cell_tags, materials)
         l_axis = orientation.from_callable(tripod.mesh, lambda x: spiral_directions(
             x, spec["pitch_deg"], spec["handedness"], spec["center"]))
