@@ -43,7 +43,7 @@ def test_the_default_is_the_papers_foam_over_the_whole_grid(table, samples):
     assert tables.DEFAULT_TABLE in tables.shipped_tables() and tables.DEFAULT_TABLE in tables.TABLE_NOTES
     assert set(tables.shipped_tables()) <= set(tables.TABLE_NOTES)
     densities = (0.09, 0.12, 0.15, 0.18, 0.22, 0.26, 0.30, 0.35)
-    gammas = (0.1, 0.2, 0.3, 1.0)
+    gammas = (0.1, 0.2, 0.3, 0.5, 1.0)
     assert set(zip(table["density"], table["gamma"], strict=True)) == {(d, g) for d in densities for g in gammas}
     assert np.all(table["n_seeds"] == 3) and len(samples["density"]) == 3 * len(densities) * len(gammas)
     assert np.all(np.abs(samples["measured_density"] - samples["density"]) < 0.002)
