@@ -557,7 +557,7 @@ def bracket_samples(lower: Sequence[dict], upper: Sequence[dict]) -> list[dict]:
             raise InputError(f"bracket: sample density {key[0]}, gamma {key[1]}, seed {key[2]} was computed at other "
                              f"settings by the two sweeps: {settings_dict(s_lo)} vs {settings_dict(s_hi)}")
         inputs = {k: lo[k] for k in (*INPUTS, "measured_density", "radius")}
-        rows.append(_sample_row(inputs, settings, [_stiffness(lo), _stiffness(hi)],
+        rows.append(_sample_row(inputs, settings, [row_stiffness(lo), row_stiffness(hi)],
                                 iterations=int(lo["iterations"]) + int(hi["iterations"]),
                                 wall_s=float(lo["wall_s"]) + float(hi["wall_s"])))
     return rows
@@ -567,8 +567,8 @@ def _sample_label(row: dict) -> str:
     return f"density {row['density']}, gamma {row['gamma']}, seed {row['seed']}"
 
 
-def _stiffness(row: dict) -> np.ndarray:
-    """The Voigt ``C`` of a sample row (its 21 ``C_ij`` columns)."""
+def row_stiffness(row) -> np.ndarray:
+    """The Voigt ``C`` of a sample row (its 21 ``C_ij`` columns; a dict or any mapping of them)."""
     C = np.zeros((6, 6))
     for name in C_ENTRIES:
         i, j = int(name[1]) - 1, int(name[2]) - 1

@@ -11,7 +11,7 @@ import pytest
 from fenicsfoam.material.table import FoamTable, foam_table
 from fenicsfoam.materials import TransverseIsotropic, foam_material
 from homogenization import tables
-from homogenization.tensors import closest_transverse_isotropic, isotropic_voigt
+from homogenization.tensors import isotropic_voigt
 
 SCENES = Path(__file__).resolve().parents[1] / "demos" / "scenes"
 E_TPU = 12e6
@@ -29,14 +29,6 @@ def samples():
     return tables.read_csv(tables.table_paths(tables.DEFAULT_TABLE)["samples"])
 
 
-def stiffness(row) -> np.ndarray:
-    C = np.zeros((6, 6))
-    for i in range(6):
-        for j in range(i, 6):
-            C[i, j] = C[j, i] = row[f"C{i + 1}{j + 1}"]
-    return C
-
-
 def test_the_default_is_the_papers_foam_over_the_whole_grid(table, samples):
     """Densities 0.09–0.35 × γ 0.1–1, every node a full set of seeds, every sample at its density, the rows the
     rotated … hex8 bracket of the polyhedral wall foam with pores of 0.0045 E_s."""
@@ -52,20 +44,14 @@ def test_the_default_is_the_papers_foam_over_the_whole_grid(table, samples):
     assert foam_table(None).path == str(tables.table_paths(tables.DEFAULT_TABLE)["table"])
 
 
-def test_every_sample_is_an_admissible_stiffness_below_the_voigt_bound_with_its_x_axis_fit(samples):
-    """C symmetric positive definite and below the two phases' Voigt bound (ρ C_s + (1 − ρ) C_pore); its ti_*
-    columns the closest TI stiffness about x, its E1 and ν21 those of its compliance."""
+def test_every_sample_is_an_admissible_stiffness_below_the_voigt_bound(samples):
+    """C symmetric positive definite and below the two phases' Voigt bound (ρ C_s + (1 − ρ) C_pore); that its ti_*
+    columns are the fit of C is checked with every shipped table's (test_tables.py)."""
     for i in range(len(samples["density"])):
-        C = stiffness({k: samples[k][i] for k in tables.C_ENTRIES})
+        C = tables.row_stiffness({k: samples[k][i] for k in tables.C_ENTRIES})
         rho, e = samples["density"][i], samples["pore_modulus"][i]
         voigt = (rho + (1 - rho) * e) * isotropic_voigt(1.0, tables.NU_SOLID)
         assert np.linalg.eigvalsh(C).min() > 0 and np.linalg.eigvalsh(voigt - C).min() > 0, i
-        fit = closest_transverse_isotropic(C, axis=0)
-        np.testing.assert_allclose([samples[f"ti_{k}"][i] for k in ("E_t", "E_l", "nu_t", "nu_tl", "G_l")],
-                                   [fit.E_t, fit.E_l, fit.nu_t, fit.nu_tl, fit.G_l], rtol=1e-9)
-        S = np.linalg.inv(C)
-        np.testing.assert_allclose([samples["E1"][i], samples["nu21"][i]], [1 / S[0, 0], -S[1, 0] / S[1, 1]],
-                                   rtol=1e-9)
 
 
 def test_interpolation_is_exact_at_every_node(table):
