@@ -143,3 +143,17 @@ def test_homogenize_image_with_a_compliant_pore_phase_gives_the_voigt_modulus_al
     assert soft["islands"] == 0 and soft["edge_contacts_x"] == 0
     void = fig4.homogenize_image(img, (1.0, 1.0, 1.0), "hex8", 1e-8, 200, "normal")
     assert void["E2"] == pytest.approx(0.4, rel=1e-6)
+
+
+def test_held_out_rows_lie_inside_their_series_and_are_compared_like_the_others(tiny_table):
+    """The fourth density of each series sits between the used ones, so a table covering the used rows is read
+    there by interpolation (never extrapolated); each held-out row is in no fit."""
+    held = fig4.paper_rows(held_out=True)
+    used = fig4.paper_rows()
+    assert [(r["series"], r["density"]) for r in held] == [("transverse", 0.1798), ("isotropic", 0.1534)]
+    for r in held:
+        densities = [u["density"] for u in used if u["series"] == r["series"]]
+        assert min(densities) < r["density"] < max(densities) and r["gamma"] == fig4.SERIES[r["series"]]
+    comparison = fig4.compare_table(tiny_table, held, "tiny")
+    assert {(c["series"], c["density"]) for c in comparison} == {("transverse", 0.1798), ("isotropic", 0.1534)}
+    assert all(c["ours"] > 0 and np.isfinite(c["ratio"]) for c in comparison)
