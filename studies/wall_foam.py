@@ -16,7 +16,10 @@ choice, checked by ``resolution``.
     Seeds ``--seeds`` (default 0) at every ``--grid`` of each γ; prints the moduli per grid with the voxels across
     a wall along x and y (``2 × half width / h``), and for each family of grids of one voxel aspect with at least
     three members a Richardson estimate (``q = q0 + c h^p`` through the three finest,
-    :func:`homogenization.convergence.richardson`, in the x spacing) with the remaining bias of each level.
+    :func:`homogenization.convergence.richardson`, in the x spacing) with the remaining bias of each level. With
+    ``--discretization bracket`` each sample is the midpoint of its rotated and hex8 samples (each computed and
+    cached on its own, so a rotated and a hex8 study of the same grids cost nothing more;
+    :func:`homogenization.tables.bracket_samples`): the convergence of the quantity a bracket table ships.
 ``table``
     Every ``--density`` × one grid per γ (``--grid``, the last given for a γ wins), seeds ``--seeds`` (default
     0 1 2), in one resumable run: with ``--reference-density REF`` each ``--grid`` is the grid at ``REF``, scaled
@@ -45,6 +48,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -98,8 +102,11 @@ def spacing(gamma: float, grid) -> np.ndarray:
 def resolution_study(a, comm) -> int:
     rows = []
     for gamma, grid in a.grid:
-        rows += tables.run_sweep(tables.grid(a.density, (gamma,), a.seeds), settings_for(grid, a), a.cache, comm,
-                                 threads=1, progress=False, distribute=a.distribute)
+        samples, settings = tables.grid(a.density, (gamma,), a.seeds), settings_for(grid, a)
+        kinds = ("rotated", "hex8") if a.discretization == "bracket" else (a.discretization,)
+        sides = [tables.run_sweep(samples, replace(settings, discretization=kind), a.cache, comm, threads=1,
+                                  progress=False, distribute=a.distribute) for kind in kinds]
+        rows += tables.bracket_samples(*sides) if a.discretization == "bracket" else sides[0]
     if comm.rank != 0:
         return 0
     rows = [r | {"resolution": str(r["resolution"])} for r in rows]  # N or 'N1xN2xN3', one type to sort
@@ -138,13 +145,50 @@ def resolution_study(a, comm) -> int:
             extrapolated += [{"gamma": gamma, "aspect": aspect, "resolution": s["resolution"], "name": name,
                               "value": s[name], "extrapolated": q0, "order": p, "asymptotic": est.asymptotic,
                               "bias": float(b)} for s, b in zip(family, bias, strict=True)]
+    against = against_finest_bracket(rows, summary) if a.discretization == "bracket" else []
     a.out.mkdir(parents=True, exist_ok=True)
     tables.to_csv(rows, a.out / "resolution.csv")
     tables.to_csv(summary, a.out / "resolution_summary.csv")
     if extrapolated:
         tables.to_csv(extrapolated, a.out / "resolution_richardson.csv")
+    if against:
+        tables.to_csv(against, a.out / "resolution_bracket.csv")
     print(f"wrote {a.out / 'resolution.csv'}")
     return density_check(rows)
+
+
+def against_finest_bracket(rows: list[dict], summary: list[dict]) -> list[dict]:
+    """Each level's bracket midpoint against the finest level's bracket, per family (γ, voxel aspect) and modulus.
+
+    On the assumption that the rotated scheme converges from below and hex8 from above (measured on void foams,
+    docs/benchmarks/2026-11-27-void-homogenization.md; ``resolution`` shows whether each side is monotone), the
+    converged value lies in the finest level's bracket ``[q_f (1 − w_f), q_f (1 + w_f)]`` (``w_f`` its relative
+    half width, the widest over the seeds), so a level's midpoint ``q`` is off the converged value by between
+    ``q / (q_f (1 + w_f)) − 1`` and ``q / (q_f (1 − w_f)) − 1``: printed as that interval, written with the offset
+    ``q / q_f − 1`` from the finest midpoint.
+    """
+    out = []
+    for gamma, aspect in sorted({(s["gamma"], round(s["aspect"], 6)) for s in summary}):
+        family = sorted((s for s in summary if (s["gamma"], round(s["aspect"], 6)) == (gamma, aspect)),
+                        key=lambda s: -s["h_x"])
+        if len(family) < 2:
+            continue
+        finest = family[-1]
+        width = {q: max(r[f"bracket_{q}"] for r in rows
+                        if (r["gamma"], r["resolution"]) == (gamma, finest["resolution"])) for q in MODULI}
+        print(f"γ = {gamma}, voxel aspect {aspect:g}: each grid's midpoint against the finest ({finest['resolution']}) "
+              "bracket, i.e. its error range if the converged value lies in that bracket")
+        for q in MODULI:
+            cells = []
+            for s in family:
+                ratio = s[q] / finest[q]
+                lo, hi = ratio / (1 + width[q]) - 1, ratio / (1 - width[q]) - 1
+                cells.append(f"{s['resolution']}: {lo:+.1%} … {hi:+.1%}")
+                out.append({"gamma": gamma, "aspect": aspect, "resolution": s["resolution"], "name": q,
+                            "value": s[q], "finest": finest[q], "finest_half_width": width[q],
+                            "offset_from_finest": ratio - 1, "error_low": lo, "error_high": hi})
+            print(f"  {q:>7} (finest ± {width[q]:.1%}): " + "; ".join(cells))
+    return out
 
 
 def node_grid(a, density: float, gamma: float, grid):
