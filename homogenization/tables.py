@@ -24,7 +24,8 @@ deviation over seeds per (density, γ); ``fenicsfoam.materials.foam_material`` i
 
 Every sweep setting of box and foam writes a table of its own name (:attr:`SweepSettings.name`,
 :func:`table_paths`), each with its samples and provenance; :func:`shipped_tables` lists those in :data:`DATA_DIR`
-and :data:`TABLE_NOTES` says what each one is. The default, :data:`DEFAULT_TABLE`, is the paper's foam: the
+and :data:`TABLE_NOTES` says what each one is; a table merged under a name of its own (:func:`merge_tables`) may
+hold nodes of several settings. The default, :data:`DEFAULT_TABLE`, is the paper's foam: the
 polyhedral wall foam with pores of 0.0045 E_s, the midpoint of the rotated … hex8 bracket, over the whole density ×
 γ grid (``foam_table_equiaxed_polyhedral_bracket_pores0p0045.csv``, docs/foam.md).
 
@@ -84,6 +85,8 @@ SWEEP_DISCRETIZATIONS = ("rotated", "hex8", "bracket")
 #: (or, with ``pore_modulus``, a soft) phase, on which fully integrated voxels reach the converged moduli on a coarser
 #: grid in a fraction of the iterations (docs/benchmarks/2026-11-27-void-homogenization.md).
 DEFAULT_DISCRETIZATION = "hex8"
+#: what a bracket table's rows hold (:func:`bracket_samples`): the mean stiffness, or the hex8 side's
+BRACKET_ESTIMATES = ("midpoint", "hex8")
 #: the moduli whose rotated … hex8 bracket a ``"bracket"`` row records (``bracket_<name>``, relative half width)
 BRACKETED = ("E1", "E2", "E3", "G23", "G13", "G12", "ti_E_t", "ti_E_l", "ti_G_l", "iso_E")
 #: The shipped tables (package data).
@@ -527,14 +530,20 @@ def _sample_row(inputs: dict, settings: SweepSettings, stiffnesses: Sequence[np.
     return out
 
 
-def bracket_samples(lower: Sequence[dict], upper: Sequence[dict]) -> list[dict]:
+def bracket_samples(lower: Sequence[dict], upper: Sequence[dict], estimate: str = "midpoint") -> list[dict]:
     """The ``"bracket"`` rows of samples computed twice, by a rotated (``lower``) and a hex8 (``upper``) sweep.
 
     Every sample (density, γ, seed) must be in both with the same settings but the discretization; each returned
     row is the one a ``"bracket"`` sweep of that sample gives (:class:`SweepSettings`), with the two runs'
-    iterations and wall times summed. Raises :class:`~foambase.errors.InputError` naming the first sample that is
-    missing from one side or computed at other settings, before anything is returned.
+    iterations and wall times summed. ``estimate="hex8"``: each row is instead the hex8 sample itself (its
+    settings, its stiffness), with the same ``bracket_<name>`` columns: for grids on which the resolution study
+    finds the hex8 side converged and the rotated side not (the default table at γ = 0.2 and 0.3,
+    docs/validation/2026-11-27-table-convergence.md). Raises :class:`~foambase.errors.InputError` naming the first
+    sample that is missing from one side or computed at other settings, or for another ``estimate``, before
+    anything is returned.
     """
+    if estimate not in BRACKET_ESTIMATES:
+        raise InputError(f"bracket estimate must be one of {BRACKET_ESTIMATES}, got {estimate!r}")
     def by_sample(rows, kind):
         out = {}
         for row in rows:
@@ -557,9 +566,13 @@ def bracket_samples(lower: Sequence[dict], upper: Sequence[dict]) -> list[dict]:
             raise InputError(f"bracket: sample density {key[0]}, gamma {key[1]}, seed {key[2]} was computed at other "
                              f"settings by the two sweeps: {settings_dict(s_lo)} vs {settings_dict(s_hi)}")
         inputs = {k: lo[k] for k in (*INPUTS, "measured_density", "radius")}
-        rows.append(_sample_row(inputs, settings, [row_stiffness(lo), row_stiffness(hi)],
-                                iterations=int(lo["iterations"]) + int(hi["iterations"]),
-                                wall_s=float(lo["wall_s"]) + float(hi["wall_s"])))
+        cost = {"iterations": int(lo["iterations"]) + int(hi["iterations"]),
+                "wall_s": float(lo["wall_s"]) + float(hi["wall_s"])}
+        row = _sample_row(inputs, settings, [row_stiffness(lo), row_stiffness(hi)], **cost)
+        if estimate == "hex8":
+            widths = {k: v for k, v in row.items() if k.startswith("bracket_")}
+            row = _sample_row(inputs, s_hi, [row_stiffness(hi)], **cost) | widths
+        rows.append(row)
     return rows
 
 
@@ -775,7 +788,7 @@ def _recorded(provenance, density: float, gamma: float) -> dict | None:
                 k: v for k, v in high.items() if k != "discretization"}:
             raise InputError(f"bracket provenance, node {_node_key(density, gamma)}: its rotated and hex8 sources "
                              f"record other settings ({low} and {high})")
-        return low | {"discretization": "bracket"}
+        return high if provenance.get("estimate") == "hex8" else low | {"discretization": "bracket"}
     return None
 
 
@@ -865,15 +878,16 @@ def _row_settings(row: dict) -> dict:
     return settings_dict(settings_from_row(row))
 
 
-def merge_samples(sources: Sequence[tuple[str, Sequence[dict]]]) -> list[dict]:
+def merge_samples(sources: Sequence[tuple[str, Sequence[dict]]], *, mixed: bool = False) -> list[dict]:
     """The samples of several tables as one table's samples, refusing any mix of settings at one grid node.
 
     ``sources`` are ``(label, rows)`` pairs (e.g. per-density tables of one sweep). A (density, γ) node may come
     from several sources only with the same settings (cells, grid, tolerance, box, foam, discretization) for every
     seed; a sample (density, γ, seed) given twice must have the same settings and the same stiffness, and is kept
-    once. All rows must belong to one table (:attr:`SweepSettings.name`). Raises
-    :class:`~foambase.errors.InputError` naming the node, the sources and the differing settings, before anything
-    is written.
+    once. All rows must belong to one table (:attr:`SweepSettings.name`), unless ``mixed``: then nodes of
+    different tables may be put together (e.g. each γ at the discretization its resolution study chose; every row
+    keeps its own settings columns). Raises :class:`~foambase.errors.InputError` naming the node, the sources and
+    the differing settings, before anything is written.
     """
     nodes: dict[tuple[float, float], tuple[str, dict]] = {}
     samples: dict[tuple[float, float, int], tuple[str, dict]] = {}
@@ -897,28 +911,40 @@ def merge_samples(sources: Sequence[tuple[str, Sequence[dict]]]) -> list[dict]:
                                      f"differs between {other_label!r} and {label!r} at the same settings")
                 continue
             samples[key] = (label, row)
-    if len(names) > 1:
-        raise InputError(f"cannot merge rows of different tables: {sorted(names)} (from {sorted(names.values())})")
+    if len(names) > 1 and not mixed:
+        raise InputError(f"cannot merge rows of different tables: {sorted(names)} (from {sorted(names.values())}); "
+                         "give the merged table a name to put them together")
+    columns = {label: list(rows[0]) for label, rows in sources if rows}
+    if mixed and len({tuple(c) for c in columns.values()}) > 1:
+        first, *others = columns.items()
+        other = next(o for o in others if o[1] != first[1])
+        raise InputError(f"cannot merge tables of other columns: {other[0]!r} has "
+                         f"{sorted(set(other[1]) ^ set(first[1])) or 'them in another order'} unlike {first[0]!r}")
     if not samples:
         raise InputError("cannot merge: no samples")
     return [row for _, (_, row) in sorted(samples.items())]
 
 
-def merge_tables(sources: Sequence[str | os.PathLike], out_dir: str | os.PathLike) -> dict[str, Path]:
+def merge_tables(sources: Sequence[str | os.PathLike], out_dir: str | os.PathLike,
+                 name: str | None = None) -> dict[str, Path]:
     """Merge the tables written by :func:`write_tables` in the directories ``sources`` into one in ``out_dir``.
 
     Each source holds one table (one ``foam_table*_samples.csv``); the merged samples (:func:`merge_samples`),
     their aggregate over seeds and a provenance listing every source's provenance are written under that table's
-    name. Raises :class:`~foambase.errors.InputError` before writing anything for a source without exactly one
-    table or with conflicting settings.
+    name, or under ``name`` (a word of letters, digits and ``_``), which also lets the sources be different tables
+    whose nodes do not overlap (``merge_samples(mixed=True)``; each node's settings stay its source's,
+    :func:`recorded_settings`). Raises :class:`~foambase.errors.InputError` before writing anything for a source
+    without exactly one table, with conflicting settings, or for an invalid ``name``.
     """
+    if name is not None and not re.fullmatch(r"[A-Za-z0-9_]+", str(name)):
+        raise InputError(f"a merged table's name must be letters, digits and '_', got {name!r}")
     loaded, provenance = [], []
     for source in sources:
         rows, prov = _read_table_dir(source, "merge")
         loaded.append((str(source), rows))
         provenance.append({"source": str(source), "provenance": prov})
-    rows = merge_samples(loaded)
-    name = settings_from_row(rows[0]).name
+    rows = merge_samples(loaded, mixed=name is not None)
+    name = name or settings_from_row(rows[0]).name
     merged = {"merged_from": provenance, "date": datetime.now(UTC).isoformat(timespec="seconds"),
               "n_samples": len(rows), "sample_wall_s_total": float(sum(float(r["wall_s"]) for r in rows))}
     return write_tables(rows, out_dir, merged, name)
@@ -938,16 +964,18 @@ def _read_table_dir(source: str | os.PathLike, what: str) -> tuple[list[dict], d
     return read_samples(found[0]), prov
 
 
-def bracket_tables(lower: str | os.PathLike, upper: str | os.PathLike, out_dir: str | os.PathLike) -> dict[str, Path]:
+def bracket_tables(lower: str | os.PathLike, upper: str | os.PathLike, out_dir: str | os.PathLike,
+                   estimate: str = "midpoint") -> dict[str, Path]:
     """The ``"bracket"`` table of a rotated table (directory ``lower``) and a hex8 table (``upper``).
 
-    Both must hold the same samples (:func:`bracket_samples`); the table is written into ``out_dir`` with a
-    provenance holding both sources'.
+    Both must hold the same samples (:func:`bracket_samples`, with its ``estimate``); the table is written into
+    ``out_dir`` with a provenance holding both sources' and the estimate.
     """
     (low, low_prov), (high, high_prov) = _read_table_dir(lower, "bracket"), _read_table_dir(upper, "bracket")
-    rows = bracket_samples(low, high)
+    rows = bracket_samples(low, high, estimate)
     provenance = {"bracketed_from": {"rotated": {"source": str(lower), "provenance": low_prov},
                                      "hex8": {"source": str(upper), "provenance": high_prov}},
+                  "estimate": estimate,
                   "date": datetime.now(UTC).isoformat(timespec="seconds"), "n_samples": len(rows),
                   "sample_wall_s_total": float(sum(float(r["wall_s"]) for r in rows))}
     return write_tables(rows, out_dir, provenance, settings_from_row(rows[0]).name)

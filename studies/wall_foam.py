@@ -31,11 +31,13 @@ choice, checked by ``resolution``.
 ``merge``
     ``--from DIR [DIR ...]``: the tables of earlier ``table`` runs merged into one under ``--out``
     (:func:`homogenization.tables.merge_tables`; refuses a (density, γ) node at different settings in two runs).
+    With ``--name NAME`` the merged table is ``NAME`` and its sources may be different tables (e.g. one γ from a
+    hex8 table, another from a bracket table); each node keeps its source's settings.
 ``bracket``
     ``--from ROTATED_DIR HEX8_DIR``: a rotated and a hex8 table of the same samples as one ``"bracket"`` table
     under ``--out`` (:func:`homogenization.tables.bracket_tables`: the mean stiffness of the two discretizations of
     each sample, with the bracket's relative half width per modulus; the same rows as a ``--discretization
-    bracket`` sweep).
+    bracket`` sweep). ``--estimate hex8``: each row the hex8 sample, with the same widths.
 
 Run: ``OMP_NUM_THREADS=1 python studies/wall_foam.py table --grid 0.1=60x300x300 --grid 1=96 --cache
 out/wall-cache --out out/wall-table`` (``mpirun -n 2`` deals the samples to two ranks; with ``--distribute fft``
@@ -237,14 +239,14 @@ def table(a, comm) -> int:
 
 def merge(a, comm) -> int:
     if comm.rank == 0:
-        paths = tables.merge_tables(a.sources, a.out)
+        paths = tables.merge_tables(a.sources, a.out, name=a.name)
         print("written: " + ", ".join(str(v) for v in paths.values()))
     return 0
 
 
 def bracket(a, comm) -> int:
     if comm.rank == 0:
-        paths = tables.bracket_tables(*a.sources, a.out)
+        paths = tables.bracket_tables(*a.sources, a.out, estimate=a.estimate)
         rows = tables.aggregate(tables.read_samples(paths["samples"]))
         print(tables.format_table(rows))
         print("widest bracket (relative half width) per modulus: " + ", ".join(
@@ -280,6 +282,12 @@ def main(argv=None) -> int:
                         "Fig. 4, docs/validation/2026-11-27-fig4.md section 7); the table name ends in _pores...")
     p.add_argument("--from", dest="sources", type=Path, nargs="+", default=None,
                    help="merge: the table directories (--out of earlier table runs) to merge into --out")
+    p.add_argument("--estimate", choices=tables.BRACKET_ESTIMATES, default="midpoint",
+                   help="bracket: each row the midpoint of the two discretizations (default) or the hex8 sample, "
+                        "with the bracket's widths either way")
+    p.add_argument("--name", default=None,
+                   help="merge: the merged table's name; lets tables of different settings (e.g. discretizations "
+                        "chosen per γ) be merged, node by node")
     p.add_argument("--seeds", type=int, nargs="+", default=None, help="default 0 (resolution), 0 1 2 (table)")
     p.add_argument("--gamma-seeds", type=parse_seeds, action="append", default=None,
                    help="GAMMA=S1,S2,...: the seeds of one γ (table; default --seeds)")

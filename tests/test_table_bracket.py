@@ -54,3 +54,23 @@ def test_bracket_tables_writes_the_bracket_table_from_two_table_directories(swee
     assert paths["table"].name == "foam_table_cube_bracket_pores0p01.csv"
     rows = tables.read_samples(paths["samples"])
     np.testing.assert_allclose([r["E1"] for r in rows], [r["E1"] for r in sweeps["bracket"]], rtol=1e-12)
+
+
+def test_the_hex8_estimate_keeps_the_hex8_sample_with_the_bracket_widths_and_reads_back_as_hex8(sweeps, tmp_path):
+    """``estimate="hex8"``: each row is the hex8 sample (settings and stiffness) plus the midpoint row's bracket
+    widths, with the midpoint rows' columns (so it merges with them); its provenance reads back as hex8."""
+    rows = tables.bracket_samples(sweeps["rotated"], sweeps["hex8"], estimate="hex8")
+    mid = tables.bracket_samples(sweeps["rotated"], sweeps["hex8"])
+    for row, hi, m in zip(rows, sweeps["hex8"], mid, strict=True):
+        assert tables.settings_from_row(row) == _settings("hex8") and list(row) == list(m)
+        assert all(row[name] == hi[name] for name in tables.C_ENTRIES + ("E1", "G12", "ti_E_t"))
+        assert all(row[f"bracket_{q}"] == m[f"bracket_{q}"] for q in tables.BRACKETED)
+    with pytest.raises(InputError, match="estimate must be one of .*'upper'"):
+        tables.bracket_samples(sweeps["rotated"], sweeps["hex8"], estimate="upper")
+    for kind in ("rotated", "hex8"):
+        per_node = {"density=0.3,gamma=1": tables.settings_dict(_settings(kind))}
+        tables.write_tables(sweeps[kind], tmp_path / kind, {"settings_per_node": per_node}, _settings(kind).name)
+    paths = tables.bracket_tables(tmp_path / "rotated", tmp_path / "hex8", tmp_path / "out", estimate="hex8")
+    name = paths["table"].name.removeprefix("foam_table_").removesuffix(".csv")
+    assert name == "cube_hex8_pores0p01"
+    assert tables.recorded_settings(name, tmp_path / "out", nodes=True) == {(0.3, 1.0): _settings("hex8")}

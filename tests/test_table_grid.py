@@ -89,6 +89,35 @@ def test_merge_refuses_a_node_at_other_settings_and_names_it(sweep):
         tables.merge_samples([("base", rows), ("box", struts_in_box)])
 
 
+def test_a_named_merge_puts_nodes_of_different_tables_together_each_with_its_own_settings(sweep, tmp_path):
+    """γ = 1 from the sweep's hex8 table, γ = 0.5 from a rotated one (its rows relabelled: the merge reads
+    settings, not stiffnesses): refused unnamed, merged under a name, and every node reads back its own source's
+    settings."""
+    _, rows = sweep
+    assert {r["discretization"] for r in rows} == {"hex8"}
+    rotated = [r | {"discretization": "rotated"} for r in rows if r["gamma"] == 0.5]
+    hex8 = [r for r in rows if r["gamma"] == 1.0]
+    for label, part in (("rotated", rotated), ("hex8", hex8)):
+        per_node = {f"density={r['density']:g},gamma={r['gamma']:g}": tables.settings_dict(
+            tables.settings_from_row(r)) for r in part}
+        tables.write_tables(part, tmp_path / label, {"settings_per_node": per_node},
+                            tables.settings_from_row(part[0]).name)
+    with pytest.raises(InputError, match="different tables.*give the merged table a name"):
+        tables.merge_tables([tmp_path / "rotated", tmp_path / "hex8"], tmp_path / "unnamed")
+    with pytest.raises(InputError, match="letters, digits"):
+        tables.merge_tables([tmp_path / "rotated", tmp_path / "hex8"], tmp_path / "bad", name="a/b")
+    tables.write_tables([{k: v for k, v in r.items() if k != "discretization"} for r in rotated],
+                        tmp_path / "no_column", {}, "cube")
+    with pytest.raises(InputError, match=r"other columns: .*\['discretization'\]"):
+        tables.merge_tables([tmp_path / "no_column", tmp_path / "hex8"], tmp_path / "columns", name="chosen")
+    paths = tables.merge_tables([tmp_path / "rotated", tmp_path / "hex8"], tmp_path / "mixed", name="chosen")
+    assert paths["table"].name == "foam_table_chosen.csv"
+    recorded = tables.recorded_settings("chosen", tmp_path / "mixed", nodes=True)
+    assert {g: s.discretization for (_, g), s in recorded.items()} == {0.5: "rotated", 1.0: "hex8"}
+    assert {(d, g): s.resolution for (d, g), s in recorded.items()} == {
+        (0.25, 0.5): 16, (0.3, 0.5): 13, (0.25, 1.0): 16, (0.3, 1.0): 13}
+
+
 @pytest.mark.mpi
 @pytest.mark.parametrize("distribute", ["samples", pytest.param("fft", marks=pytest.mark.slow)])
 def test_per_node_settings_under_mpi_give_the_serial_rows(tmp_path, distribute):
