@@ -19,7 +19,8 @@ choice, checked by ``resolution``.
     :func:`homogenization.convergence.richardson`, in the x spacing) with the remaining bias of each level. With
     ``--discretization bracket`` each sample is the midpoint of its rotated and hex8 samples (each computed and
     cached on its own, so a rotated and a hex8 study of the same grids cost nothing more;
-    :func:`homogenization.tables.bracket_samples`): the convergence of the quantity a bracket table ships.
+    :func:`homogenization.tables.bracket_samples`), and each level's midpoint and hex8 side are set against the
+    finest level's bracket (:func:`against_finest_bracket`): which estimate a bracket table should ship.
 ``table``
     Every ``--density`` × one grid per γ (``--grid``, the last given for a γ wins), seeds ``--seeds`` (default
     0 1 2), in one resumable run: with ``--reference-density REF`` each ``--grid`` is the grid at ``REF``, scaled
@@ -102,13 +103,16 @@ def spacing(gamma: float, grid) -> np.ndarray:
 
 
 def resolution_study(a, comm) -> int:
-    rows = []
+    rows, side_rows = [], {"rotated": [], "hex8": []}
     for gamma, grid in a.grid:
         samples, settings = tables.grid(a.density, (gamma,), a.seeds), settings_for(grid, a)
         kinds = ("rotated", "hex8") if a.discretization == "bracket" else (a.discretization,)
         sides = [tables.run_sweep(samples, replace(settings, discretization=kind), a.cache, comm, threads=1,
                                   progress=False, distribute=a.distribute) for kind in kinds]
         rows += tables.bracket_samples(*sides) if a.discretization == "bracket" else sides[0]
+        if a.discretization == "bracket":
+            for kind, side in zip(kinds, sides, strict=True):
+                side_rows[kind] += side
     if comm.rank != 0:
         return 0
     rows = [r | {"resolution": str(r["resolution"])} for r in rows]  # N or 'N1xN2xN3', one type to sort
@@ -147,7 +151,12 @@ def resolution_study(a, comm) -> int:
             extrapolated += [{"gamma": gamma, "aspect": aspect, "resolution": s["resolution"], "name": name,
                               "value": s[name], "extrapolated": q0, "order": p, "asymptotic": est.asymptotic,
                               "bias": float(b)} for s, b in zip(family, bias, strict=True)]
-    against = against_finest_bracket(rows, summary) if a.discretization == "bracket" else []
+    against = []
+    if a.discretization == "bracket":
+        keys = ("gamma", "n_cells", "resolution")
+        lower, upper = (summarize([r | {"resolution": str(r["resolution"])} for r in side_rows[kind]], keys)
+                        for kind in ("rotated", "hex8"))
+        against = against_finest_bracket(summary, lower, upper)
     a.out.mkdir(parents=True, exist_ok=True)
     tables.to_csv(rows, a.out / "resolution.csv")
     tables.to_csv(summary, a.out / "resolution_summary.csv")
@@ -159,37 +168,43 @@ def resolution_study(a, comm) -> int:
     return density_check(rows)
 
 
-def against_finest_bracket(rows: list[dict], summary: list[dict]) -> list[dict]:
-    """Each level's bracket midpoint against the finest level's bracket, per family (γ, voxel aspect) and modulus.
+def against_finest_bracket(summary: list[dict], lower: list[dict], upper: list[dict]) -> list[dict]:
+    """Each level's two estimates against the finest level's bracket, per family (γ, voxel aspect) and modulus.
 
-    On the assumption that the rotated scheme converges from below and hex8 from above (measured on void foams,
-    docs/benchmarks/2026-11-27-void-homogenization.md; ``resolution`` shows whether each side is monotone), the
-    converged value lies in the finest level's bracket ``[q_f (1 − w_f), q_f (1 + w_f)]`` (``w_f`` its relative
-    half width, the widest over the seeds), so a level's midpoint ``q`` is off the converged value by between
-    ``q / (q_f (1 + w_f)) − 1`` and ``q / (q_f (1 − w_f)) − 1``: printed as that interval, written with the offset
-    ``q / q_f − 1`` from the finest midpoint.
+    ``summary``, ``lower``, ``upper``: the seed means per level of the midpoint, rotated and hex8 rows
+    (``summary`` with each level's ``h_x`` and ``aspect``). On the assumption that the rotated scheme converges
+    from below and hex8 from above (measured on void foams, docs/benchmarks/2026-11-27-void-homogenization.md;
+    the levels show whether each side is monotone), the converged value lies in the finest level's bracket
+    ``[q_rot, q_hex8]``, so an estimate ``q`` of a level (its midpoint, or its hex8 side) is off by between
+    ``q / q_hex8 − 1`` and ``q / q_rot − 1``. Printed as its offset from the finest bracket's middle
+    ``(q_rot + q_hex8) / 2`` with that interval; returned as rows (also written as ``resolution_bracket.csv``).
     """
+    side = {(s["gamma"], s["resolution"]): (lo, hi) for s in summary
+            for lo in lower if (lo["gamma"], lo["resolution"]) == (s["gamma"], s["resolution"])
+            for hi in upper if (hi["gamma"], hi["resolution"]) == (s["gamma"], s["resolution"])}
     out = []
     for gamma, aspect in sorted({(s["gamma"], round(s["aspect"], 6)) for s in summary}):
         family = sorted((s for s in summary if (s["gamma"], round(s["aspect"], 6)) == (gamma, aspect)),
                         key=lambda s: -s["h_x"])
         if len(family) < 2:
             continue
-        finest = family[-1]
-        width = {q: max(r[f"bracket_{q}"] for r in rows
-                        if (r["gamma"], r["resolution"]) == (gamma, finest["resolution"])) for q in MODULI}
-        print(f"γ = {gamma}, voxel aspect {aspect:g}: each grid's midpoint against the finest ({finest['resolution']}) "
-              "bracket, i.e. its error range if the converged value lies in that bracket")
+        f_lo, f_hi = side[(gamma, family[-1]["resolution"])]
+        print(f"γ = {gamma}, voxel aspect {aspect:g}: each grid's estimates against the finest "
+              f"({family[-1]['resolution']}) bracket: offset from its middle (error range if the converged value "
+              "lies in it)")
         for q in MODULI:
+            lo, hi = sorted((f_lo[q], f_hi[q]))
             cells = []
             for s in family:
-                ratio = s[q] / finest[q]
-                lo, hi = ratio / (1 + width[q]) - 1, ratio / (1 - width[q]) - 1
-                cells.append(f"{s['resolution']}: {lo:+.1%} … {hi:+.1%}")
-                out.append({"gamma": gamma, "aspect": aspect, "resolution": s["resolution"], "name": q,
-                            "value": s[q], "finest": finest[q], "finest_half_width": width[q],
-                            "offset_from_finest": ratio - 1, "error_low": lo, "error_high": hi})
-            print(f"  {q:>7} (finest ± {width[q]:.1%}): " + "; ".join(cells))
+                for estimate, value in (("midpoint", s[q]), ("hex8", side[(gamma, s["resolution"])][1][q])):
+                    row = {"gamma": gamma, "aspect": aspect, "resolution": s["resolution"], "name": q,
+                           "estimate": estimate, "value": value, "finest_rotated": f_lo[q], "finest_hex8": f_hi[q],
+                           "offset": value / (0.5 * (lo + hi)) - 1, "error_low": value / hi - 1,
+                           "error_high": value / lo - 1}
+                    out.append(row)
+                    cells.append(f"{s['resolution']} {estimate} {row['offset']:+.1%} ({row['error_low']:+.1%} … "
+                                 f"{row['error_high']:+.1%})")
+            print(f"  {q:>7}: " + "; ".join(cells))
     return out
 
 
