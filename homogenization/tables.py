@@ -887,8 +887,8 @@ def merge_samples(sources: Sequence[tuple[str, Sequence[dict]]], *, mixed: bool 
     from several sources only with the same settings (cells, grid, tolerance, box, foam, discretization) for every
     seed; a sample (density, γ, seed) given twice must have the same settings and the same stiffness, and is kept
     once. All rows must belong to one table (:attr:`SweepSettings.name`), unless ``mixed``: then nodes of
-    different tables may be put together (e.g. each γ at the discretization its resolution study chose; every row
-    keeps its own settings columns). Raises :class:`~foambase.errors.InputError` naming the node, the sources and
+    different tables, with the same columns, may be put together (e.g. each γ at the discretization its
+    resolution study chose; every row keeps its own settings columns). Raises :class:`~foambase.errors.InputError` naming the node, the sources and
     the differing settings, before anything is written.
     """
     nodes: dict[tuple[float, float], tuple[str, dict]] = {}
