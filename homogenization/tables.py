@@ -100,7 +100,7 @@ TABLE_NOTES = {
     DEFAULT_TABLE: "the paper's foam (default): polyhedral wall foam, pores of 0.0045 E_s, density 0.09–0.35 × "
                    "γ 0.1–1, 3 seeds; the rotated … hex8 midpoint at γ 0.1, 0.5, 1 and the hex8 side at γ 0.2, 0.3",
     "equiaxed_polyhedral_bracket_pores0p0045": "the same samples, the midpoint at every γ (at γ 0.2–0.3 below "
-                                               "20 % its in-plane and shear moduli are 4–13 % low)",
+                                               "20 % its in-plane and shear moduli are up to 13 % low)",
     "cube": "Euclidean strut foam, 8 cells in the unit cube (period-dominated at γ < 1; the former default)",
     "equiaxed": "Euclidean strut foam, 27 cells in the box (γ, 1, 1), where it was computed",
     "equiaxed_polyhedral": "polyhedral wall foam with void pores, 18 % only (the Fig. 6 beams' density)",
