@@ -98,7 +98,7 @@ DEFAULT_TABLE = "paper_foam"
 #: One line per shipped table: what it is (docs/foam.md has the evidence behind each).
 TABLE_NOTES = {
     DEFAULT_TABLE: "the paper's foam (default): polyhedral wall foam, pores of 0.0045 E_s, density 0.09–0.35 × "
-                   "γ 0.1–1, 3 seeds; the rotated … hex8 midpoint at γ 0.1, 0.5, 1 and the hex8 side at γ 0.2, 0.3",
+                   "γ 0.1–1, 3 seeds; the rotated … hex8 midpoint (γ 0.2 on a 1.5× finer grid), the hex8 side at γ 0.3",
     "equiaxed_polyhedral_bracket_pores0p0045": "the same samples, the midpoint at every γ (at γ 0.2–0.3 below "
                                                "20 % its in-plane and shear moduli are up to 13 % low)",
     "cube": "Euclidean strut foam, 8 cells in the unit cube (period-dominated at γ < 1; the former default)",
@@ -539,7 +539,7 @@ def bracket_samples(lower: Sequence[dict], upper: Sequence[dict], estimate: str 
     row is the one a ``"bracket"`` sweep of that sample gives (:class:`SweepSettings`), with the two runs'
     iterations and wall times summed. ``estimate="hex8"``: each row is instead the hex8 sample itself (its
     settings, its stiffness), with the same ``bracket_<name>`` columns: for grids on which the resolution study
-    finds the hex8 side converged and the rotated side not (the default table at γ = 0.2 and 0.3,
+    finds the hex8 side converged and the rotated side not (the default table at γ = 0.3,
     docs/validation/2026-11-27-table-convergence.md). Raises :class:`~foambase.errors.InputError` naming the first
     sample that is missing from one side or computed at other settings, or for another ``estimate``, before
     anything is returned.

@@ -31,9 +31,9 @@ def samples():
 
 def test_the_default_is_the_papers_foam_over_the_whole_grid(table, samples):
     """Densities 0.09–0.35 × γ 0.1–1, every node a full set of seeds, every sample at its density, the rows the
-    polyhedral wall foam with pores of 0.0045 E_s: the hex8 side of the rotated … hex8 bracket at γ 0.2 and 0.3,
-    the midpoint elsewhere, with the bracket's widths everywhere; the midpoint rows are the samples of the
-    all-midpoint table."""
+    polyhedral wall foam with pores of 0.0045 E_s: the hex8 side of the rotated … hex8 bracket at γ 0.3, the
+    midpoint elsewhere (γ 0.2 on a grid 1.5× finer), with the bracket's widths everywhere; the rows at γ 0.1,
+    0.5 and 1 are the samples of the all-midpoint table."""
     assert tables.DEFAULT_TABLE in tables.shipped_tables() and tables.DEFAULT_TABLE in tables.TABLE_NOTES
     assert set(tables.shipped_tables()) <= set(tables.TABLE_NOTES)
     densities = (0.09, 0.12, 0.15, 0.18, 0.22, 0.26, 0.30, 0.35)
@@ -42,14 +42,19 @@ def test_the_default_is_the_papers_foam_over_the_whole_grid(table, samples):
     assert np.all(table["n_seeds"] == 3) and len(samples["density"]) == 3 * len(densities) * len(gammas)
     assert np.all(np.abs(samples["measured_density"] - samples["density"]) < 0.002)
     assert set(samples["distance"]) == {"polyhedral"} and set(samples["box"]) == {"equiaxed"}
-    hex8 = np.isin(samples["gamma"], (0.2, 0.3))
+    hex8 = samples["gamma"] == 0.3
     assert set(samples["discretization"][hex8]) == {"hex8"} and set(samples["discretization"][~hex8]) == {"bracket"}
     assert set(samples["pore_modulus"]) == {0.0045} and np.all(samples["bracket_G12"] > 0)
+    finer = samples["gamma"] == 0.2
+    assert set(samples["resolution"][finer & (samples["density"] == 0.18)]) == {"90x150x150"}
     midpoint = tables.read_csv(tables.table_paths("equiaxed_polyhedral_bracket_pores0p0045")["samples"])
     same = ~np.isin(midpoint["gamma"], (0.2, 0.3))
     for name in tables.C_ENTRIES + ("bracket_E2",):
-        np.testing.assert_array_equal(samples[name][~hex8], midpoint[name][same])
-    assert np.all(samples["E2"][hex8] > midpoint["E2"][~same])  # the hex8 side: above the midpoint, same voxels
+        np.testing.assert_array_equal(samples[name][~hex8 & ~finer], midpoint[name][same])
+    # on the same voxels as the midpoint table (γ = 0.3) the hex8 side lies above the midpoint; on the finer grid
+    # (γ = 0.2) the bracket is narrower than on the midpoint table's
+    assert np.all(samples["E2"][hex8] > midpoint["E2"][midpoint["gamma"] == 0.3])
+    assert np.all(samples["bracket_E2"][finer] < midpoint["bracket_E2"][midpoint["gamma"] == 0.2])
     assert foam_table(None).path == str(tables.table_paths(tables.DEFAULT_TABLE)["table"])
 
 

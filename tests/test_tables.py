@@ -417,7 +417,7 @@ def test_csv_round_trips_text_with_commas_and_floats_exactly(tmp_path):
 def test_shipped_tables_record_their_scheme_and_regenerate_with_it():
     """Every shipped table records the scheme it was made with: the older ones rotated (their provenance says so
     or, made before the choice, says nothing, which means rotated), the paper's foam the rotated … hex8 bracket
-    (the default table: its hex8 side at γ 0.2 and 0.3, the midpoint elsewhere); the settings agree with every
+    (the default table: its hex8 side at γ 0.3, the midpoint elsewhere); the settings agree with every
     sample row, and the settings read back name the shipped table itself (the default: the tables it was merged
     from), not a table of today's default (hex8)."""
     assert tables.DEFAULT_DISCRETIZATION == "hex8"
@@ -429,7 +429,7 @@ def test_shipped_tables_record_their_scheme_and_regenerate_with_it():
                                                   strict=True))), name
         for (_, gamma), settings in recorded.items():
             if name == tables.DEFAULT_TABLE:
-                scheme = "hex8" if gamma in (0.2, 0.3) else "bracket"
+                scheme = "hex8" if gamma == 0.3 else "bracket"
                 source = "equiaxed_polyhedral_hex8_pores0p0045" if scheme == "hex8" else bracket
             else:
                 scheme, source = ("bracket" if name == bracket else "rotated"), name
@@ -440,6 +440,7 @@ def test_shipped_tables_record_their_scheme_and_regenerate_with_it():
     # the paper's foam: grids scaled with density from the reference grid at 18 % (constant voxels across a wall)
     paper = tables.recorded_settings(tables.DEFAULT_TABLE, nodes=True)
     assert paper[(0.18, 0.1)].resolution == (60, 100, 100) and paper[(0.09, 0.1)].resolution == (120, 100, 100)
+    assert paper[(0.18, 0.2)].resolution == (90, 150, 150) and paper[(0.09, 0.2)].resolution == (180, 150, 150)
     assert {s.pore_modulus for s in paper.values()} == {0.0045}
     with pytest.raises(ValueError, match=r"settings vary with density at gamma 0.1 .*nodes=True"):
         tables.recorded_settings(tables.DEFAULT_TABLE)
