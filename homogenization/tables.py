@@ -888,8 +888,9 @@ def merge_samples(sources: Sequence[tuple[str, Sequence[dict]]], *, mixed: bool 
     seed; a sample (density, γ, seed) given twice must have the same settings and the same stiffness, and is kept
     once. All rows must belong to one table (:attr:`SweepSettings.name`), unless ``mixed``: then nodes of
     different tables, with the same columns, may be put together (e.g. each γ at the discretization its
-    resolution study chose; every row keeps its own settings columns). Raises :class:`~foambase.errors.InputError` naming the node, the sources and
-    the differing settings, before anything is written.
+    resolution study chose; every row keeps its own settings columns). Raises
+    :class:`~foambase.errors.InputError` naming the node, the sources and the differing settings, before anything
+    is written.
     """
     nodes: dict[tuple[float, float], tuple[str, dict]] = {}
     samples: dict[tuple[float, float, int], tuple[str, dict]] = {}
