@@ -527,9 +527,14 @@ def _sample_row(inputs: dict, settings: SweepSettings, stiffnesses: Sequence[np.
     if settings.pore_modulus != 0:  # nor the void-pore rows
         out["pore_modulus"] = settings.pore_modulus
     if settings.discretization == "bracket":
-        low, high = (_moduli_of(c) for c in stiffnesses)
-        out.update({f"bracket_{q}": abs(high[q] - low[q]) / (high[q] + low[q]) for q in BRACKETED})
+        out.update(_bracket_widths(*stiffnesses))
     return out
+
+
+def _bracket_widths(lower: np.ndarray, upper: np.ndarray) -> dict:
+    """``bracket_<q>``: the relative half width of the rotated (``lower``) … hex8 (``upper``) bracket per modulus."""
+    low, high = _moduli_of(lower), _moduli_of(upper)
+    return {f"bracket_{q}": abs(high[q] - low[q]) / (high[q] + low[q]) for q in BRACKETED}
 
 
 def bracket_samples(lower: Sequence[dict], upper: Sequence[dict], estimate: str = "midpoint") -> list[dict]:
@@ -570,11 +575,9 @@ def bracket_samples(lower: Sequence[dict], upper: Sequence[dict], estimate: str 
         inputs = {k: lo[k] for k in (*INPUTS, "measured_density", "radius")}
         cost = {"iterations": int(lo["iterations"]) + int(hi["iterations"]),
                 "wall_s": float(lo["wall_s"]) + float(hi["wall_s"])}
-        row = _sample_row(inputs, settings, [row_stiffness(lo), row_stiffness(hi)], **cost)
-        if estimate == "hex8":
-            widths = {k: v for k, v in row.items() if k.startswith("bracket_")}
-            row = _sample_row(inputs, s_hi, [row_stiffness(hi)], **cost) | widths
-        rows.append(row)
+        pair = [row_stiffness(lo), row_stiffness(hi)]
+        rows.append(_sample_row(inputs, settings, pair, **cost) if estimate == "midpoint"
+                    else _sample_row(inputs, s_hi, pair[1:], **cost) | _bracket_widths(*pair))
     return rows
 
 

@@ -133,11 +133,7 @@ def resolution_study(a, comm) -> int:
         print(f"{s['gamma']:5.2f} {str(s['resolution']):>12} {s['aspect']:6.2f} {s['across_x']:8.2f} "
               f"{s['iterations']:6.0f} {s['wall_s']:7.0f} " + " ".join(f"{s[n]:10.4e}" for n in MODULI))
     extrapolated = []
-    for gamma, aspect in sorted({(s["gamma"], round(s["aspect"], 6)) for s in summary}):
-        family = sorted((s for s in summary if (s["gamma"], round(s["aspect"], 6)) == (gamma, aspect)),
-                        key=lambda s: -s["h_x"])
-        if len(family) < 3:
-            continue
+    for gamma, aspect, family in families(summary, 3):
         h = np.array([s["h_x"] for s in family])
         print(f"γ = {gamma}, voxel aspect {aspect:g}: grids {[s['resolution'] for s in family]}")
         for name in MODULI:
@@ -168,6 +164,16 @@ def resolution_study(a, comm) -> int:
     return density_check(rows)
 
 
+def families(summary: list[dict], minimum: int):
+    """``(γ, voxel aspect, levels)`` for every family of grids of one γ and voxel aspect with at least ``minimum``
+    levels, the levels coarse to fine."""
+    for gamma, aspect in sorted({(s["gamma"], round(s["aspect"], 6)) for s in summary}):
+        family = sorted((s for s in summary if (s["gamma"], round(s["aspect"], 6)) == (gamma, aspect)),
+                        key=lambda s: -s["h_x"])
+        if len(family) >= minimum:
+            yield gamma, aspect, family
+
+
 def against_finest_bracket(summary: list[dict], lower: list[dict], upper: list[dict]) -> list[dict]:
     """Each level's two estimates against the finest level's bracket, per family (γ, voxel aspect) and modulus.
 
@@ -179,16 +185,10 @@ def against_finest_bracket(summary: list[dict], lower: list[dict], upper: list[d
     ``q / q_hex8 − 1`` and ``q / q_rot − 1``. Printed as its offset from the finest bracket's middle
     ``(q_rot + q_hex8) / 2`` with that interval; returned as rows (also written as ``resolution_bracket.csv``).
     """
-    side = {(s["gamma"], s["resolution"]): (lo, hi) for s in summary
-            for lo in lower if (lo["gamma"], lo["resolution"]) == (s["gamma"], s["resolution"])
-            for hi in upper if (hi["gamma"], hi["resolution"]) == (s["gamma"], s["resolution"])}
+    low, high = ({(s["gamma"], s["resolution"]): s for s in rows} for rows in (lower, upper))
     out = []
-    for gamma, aspect in sorted({(s["gamma"], round(s["aspect"], 6)) for s in summary}):
-        family = sorted((s for s in summary if (s["gamma"], round(s["aspect"], 6)) == (gamma, aspect)),
-                        key=lambda s: -s["h_x"])
-        if len(family) < 2:
-            continue
-        f_lo, f_hi = side[(gamma, family[-1]["resolution"])]
+    for gamma, aspect, family in families(summary, 2):
+        f_lo, f_hi = low[(gamma, family[-1]["resolution"])], high[(gamma, family[-1]["resolution"])]
         print(f"γ = {gamma}, voxel aspect {aspect:g}: each grid's estimates against the finest "
               f"({family[-1]['resolution']}) bracket: offset from its middle (error range if the converged value "
               "lies in it)")
@@ -196,7 +196,7 @@ def against_finest_bracket(summary: list[dict], lower: list[dict], upper: list[d
             lo, hi = sorted((f_lo[q], f_hi[q]))
             cells = []
             for s in family:
-                for estimate, value in (("midpoint", s[q]), ("hex8", side[(gamma, s["resolution"])][1][q])):
+                for estimate, value in (("midpoint", s[q]), ("hex8", high[(gamma, s["resolution"])][q])):
                     row = {"gamma": gamma, "aspect": aspect, "resolution": s["resolution"], "name": q,
                            "estimate": estimate, "value": value, "finest_rotated": f_lo[q], "finest_hex8": f_hi[q],
                            "offset": value / (0.5 * (lo + hi)) - 1, "error_low": value / hi - 1,
